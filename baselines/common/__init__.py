@@ -1,0 +1,1 @@
+"""Pieces shared by every algorithm: networks, replay buffer, evaluation, training context."""

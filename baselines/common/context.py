@@ -1,0 +1,46 @@
+"""What the runner hands an algorithm: the task, the budget, the demonstrations and the sinks."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+
+class DemoSet(Protocol):
+    """Demonstration pairs as an algorithm sees them (see ``replicate.demos``)."""
+
+    observations: np.ndarray  # (n, obs_dim) float32
+    actions: np.ndarray  # (n, act_dim) float32
+
+    @property
+    def mean_return(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class EvalPoint:
+    """One point of the evaluation curve."""
+
+    step: int  # env steps taken so far
+    returns: tuple[float, ...]  # return of each deterministic test episode
+    guided_fraction: float = float("nan")  # share of steps since the last point taken by a guider
+    gate_open: bool | None = None  # DRL-EG: was R_demo > R_pi after this evaluation
+
+    @property
+    def mean_return(self) -> float:
+        return float(np.mean(self.returns))
+
+
+@dataclass
+class TrainContext:
+    env_id: str
+    seed: int
+    total_steps: int
+    eval_interval: int
+    eval_episodes: int
+    demos: DemoSet | None = None
+    device: str = "cpu"
+    on_eval: Callable[[EvalPoint], None] = field(default=lambda point: None)
+    on_steps: Callable[[int], None] = field(default=lambda n: None)  # progress, in env steps

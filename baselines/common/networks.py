@@ -1,0 +1,93 @@
+"""Networks shared by the algorithms: plain MLPs, critics and a tanh-squashed Gaussian policy."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SAC reference implementation bounds
+
+
+def mlp(in_dim: int, out_dim: int, hidden_sizes: Sequence[int] = (256, 256),
+        activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
+    """A fully connected network: ``in_dim -> hidden... -> out_dim`` with no output activation."""
+    layers: list[nn.Module] = []
+    last = in_dim
+    for width in hidden_sizes:
+        layers += [nn.Linear(last, width), activation()]
+        last = width
+    layers.append(nn.Linear(last, out_dim))
+    return nn.Sequential(*layers)
+
+
+class QNetwork(nn.Module):
+    """Q(s, a): one scalar per (state, action) pair."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int] = (256, 256)):
+        super().__init__()
+        self.net = mlp(obs_dim + act_dim, 1, hidden_sizes)
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([obs, act], dim=-1)).squeeze(-1)
+
+
+class VNetwork(nn.Module):
+    """V(s): one scalar per state."""
+
+    def __init__(self, obs_dim: int, hidden_sizes: Sequence[int] = (256, 256)):
+        super().__init__()
+        self.net = mlp(obs_dim, 1, hidden_sizes)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.net(obs).squeeze(-1)
+
+
+class TanhGaussianPolicy(nn.Module):
+    """pi(a|s) = bias + scale * tanh(u), u ~ N(mu(s), sigma(s)^2), as in the SAC paper.
+
+    ``sample`` draws through the reparameterisation f(s) = mu(s) + sigma(s) * xi and
+    returns the log-density of the squashed action (change of variables through tanh and
+    the affine map to the action box). Noise comes from an explicit ``torch.Generator`` so
+    that exploration noise never disturbs the global RNG used to initialise weights.
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, action_low, action_high,
+                 hidden_sizes: Sequence[int] = (256, 256)):
+        super().__init__()
+        self.trunk = mlp(obs_dim, 2 * act_dim, hidden_sizes)
+        low = torch.as_tensor(action_low, dtype=torch.float32)
+        high = torch.as_tensor(action_high, dtype=torch.float32)
+        self.register_buffer("action_scale", (high - low) / 2.0)
+        self.register_buffer("action_bias", (high + low) / 2.0)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = self.trunk(obs).chunk(2, dim=-1)
+        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+    def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
+        mean, _ = self(obs)
+        return self.action_bias + self.action_scale * torch.tanh(mean)
+
+    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = self(obs)
+        std = log_std.exp()
+        noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype, device=mean.device)
+        pre_tanh = mean + std * noise
+        gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        # log(1 - tanh(u)^2) in a form that stays finite for large |u|
+        log_tanh_jacobian = 2.0 * (math.log(2.0) - pre_tanh - F.softplus(-2.0 * pre_tanh))
+        log_prob = gaussian_log_prob - (log_tanh_jacobian + torch.log(self.action_scale)).sum(-1)
+        action = self.action_bias + self.action_scale * torch.tanh(pre_tanh)
+        return action, log_prob
+
+
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """Polyak averaging: target <- (1 - tau) * target + tau * source."""
+    with torch.no_grad():
+        for t, s in zip(target.parameters(), source.parameters(), strict=True):
+            t.lerp_(s, tau)

@@ -1,0 +1,190 @@
+"""DRL-EG: SAC whose exploration is guided by a few demonstrations (Lin et al., the paper).
+
+A discriminator D(s) decides whether a state is close enough to the demonstrations to be
+guided; if so, and while the demonstrations still beat the policy (R_demo > R_pi), the
+executed action comes from the guider G(s) instead of the policy. The functional forms
+used in the paper's experiments (eqs. 11 and 12):
+
+    D(s) = 1  if  min_i ||s - s_i^d||_2 <= T2,  else 0
+    G(s) = a_{i*}^d + xi,  i* = argmin_i ||s - s_i^d||_2,  xi ~ N(0, sigma^2)
+
+The paper's other two forms are selectable by configuration: a GMM discriminator (eq. 10:
+guide when the fitted density of s exceeds T) and a neural guider (an MLP regressed on the
+demonstration pairs, plus the same noise). Everything else is SAC (``baselines.sac``): the
+same seed gives the same initial weights, and the executed action, guided or not, is what
+is stored in the replay buffer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from sklearn.mixture import GaussianMixture
+
+from baselines.common.buffer import ReplayBuffer
+from baselines.common.context import DemoSet, TrainContext
+from baselines.common.networks import mlp
+from baselines.registry import register
+from baselines.sac import SACConfig, build_agent, run_off_policy
+
+DISCRIMINATORS = ("functional", "gmm")
+GUIDERS = ("functional", "neural")
+
+
+@dataclass
+class DRLEGConfig(SACConfig):
+    """SAC's hyperparameters plus what the paper leaves unset (T2, sigma, K, T, the MLP)."""
+
+    discriminator: str = "functional"  # "functional" (eq. 11) or "gmm" (eq. 10)
+    guider: str = "functional"  # "functional" (eq. 12) or "neural"
+    guide_threshold: float = 0.05  # T2, in the raw state units of the env
+    guide_noise_std: float = 0.1  # sigma of the guider's Gaussian noise
+    gmm_components: int = 8  # K
+    # T is set as this quantile of the demonstration states' own GMM densities, so that
+    # one value means the same thing in every env (0.05: 95% of demo states are guided).
+    gmm_threshold_quantile: float = 0.05
+    neural_guider_steps: int = 2000  # regression steps of the neural guider
+    neural_guider_hidden: tuple[int, ...] = (256, 256)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.neural_guider_hidden = tuple(int(w) for w in self.neural_guider_hidden)
+        if self.guide_threshold < 0 or self.guide_noise_std < 0:
+            raise ValueError("guide_threshold (T2) and guide_noise_std (sigma) must be >= 0")
+        if self.discriminator not in DISCRIMINATORS or self.guider not in GUIDERS:
+            raise ValueError(f"discriminator must be one of {DISCRIMINATORS} and guider one "
+                             f"of {GUIDERS}")
+        if not 0.0 <= self.gmm_threshold_quantile <= 1.0 or self.gmm_components < 1:
+            raise ValueError("gmm_threshold_quantile must be in [0, 1] and gmm_components >= 1")
+
+
+@dataclass
+class DRLEGGMMConfig(DRLEGConfig):
+    discriminator: str = "gmm"
+
+
+def nearest_demo(demo_states: np.ndarray, state: np.ndarray) -> tuple[float, int]:
+    """Euclidean distance to, and index of, the demonstration state nearest ``state``."""
+    squared = np.einsum("ij,ij->i", demo_states - state, demo_states - state)
+    index = int(np.argmin(squared))
+    return float(np.sqrt(squared[index])), index
+
+
+def functional_discriminator(distance: float, threshold: float) -> bool:
+    """D(s) of eq. 11: guide when the nearest demonstration state is within T2."""
+    return distance <= threshold
+
+
+def functional_guider(demo_actions: np.ndarray, index: int, noise_std: float,
+                      rng: np.random.Generator, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """G(s) of eq. 12: the nearest demonstration's action plus N(0, sigma^2), clipped to the box."""
+    action = demo_actions[index] + noise_std * rng.standard_normal(demo_actions.shape[1])
+    return np.clip(action, low, high).astype(np.float32)
+
+
+def fit_gmm(demo_states: np.ndarray, components: int, threshold_quantile: float, seed: int
+            ) -> tuple[GaussianMixture, float]:
+    """EM fit of the state density (eq. 10) and the log-density threshold log T."""
+    gmm = GaussianMixture(n_components=min(components, len(demo_states)),
+                          covariance_type="full", reg_covar=1e-4, random_state=seed)
+    gmm.fit(demo_states)
+    log_threshold = float(np.quantile(gmm.score_samples(demo_states), threshold_quantile))
+    return gmm, log_threshold
+
+
+def gmm_discriminator(gmm: GaussianMixture, state: np.ndarray, log_threshold: float) -> bool:
+    """D(s) of eq. 10 in log space: guide when log p(s) > log T."""
+    return float(gmm.score_samples(state[None, :])[0]) > log_threshold
+
+
+def fit_neural_guider(demos: DemoSet, hidden: tuple[int, ...], steps: int, seed: int
+                      ) -> torch.nn.Module:
+    """An MLP s -> a regressed on the demonstration pairs (mean squared error)."""
+    generator = torch.Generator().manual_seed(seed)
+    states = torch.as_tensor(np.asarray(demos.observations, dtype=np.float32))
+    actions = torch.as_tensor(np.asarray(demos.actions, dtype=np.float32))
+    with torch.random.fork_rng():  # keep the global stream (SAC's weights) untouched
+        torch.manual_seed(seed)
+        net = mlp(states.shape[1], actions.shape[1], hidden)
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
+    for _ in range(steps):
+        idx = torch.randint(0, len(states), (min(256, len(states)),), generator=generator)
+        loss = (net(states[idx]) - actions[idx]).pow(2).sum(-1).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return net.eval()
+
+
+class Guidance:
+    """D(s) and G(s) built from the demonstrations: ``guide(s)`` is an action or None."""
+
+    def __init__(self, config: DRLEGConfig, demos: DemoSet, low: np.ndarray,
+                 high: np.ndarray, seed: int):
+        self.config, self.low, self.high = config, low, high
+        self.states = np.asarray(demos.observations, dtype=np.float64)
+        self.actions = np.asarray(demos.actions, dtype=np.float64)
+        self.rng = np.random.default_rng([seed, 2])  # apart from SAC's streams
+        if config.discriminator == "gmm":
+            self.gmm, self.log_threshold = fit_gmm(self.states, config.gmm_components,
+                                                   config.gmm_threshold_quantile, seed)
+        if config.guider == "neural":
+            self.net = fit_neural_guider(demos, config.neural_guider_hidden,
+                                         config.neural_guider_steps, seed)
+
+    def guide(self, state: np.ndarray) -> np.ndarray | None:
+        cfg = self.config
+        uses_nearest = cfg.discriminator == "functional" or cfg.guider == "functional"
+        distance, index = nearest_demo(self.states, state) if uses_nearest else (0.0, -1)
+        if cfg.discriminator == "functional":
+            guided = functional_discriminator(distance, cfg.guide_threshold)
+        else:
+            guided = gmm_discriminator(self.gmm, state, self.log_threshold)
+        if not guided:
+            return None
+        if cfg.guider == "functional":
+            return functional_guider(self.actions, index, cfg.guide_noise_std, self.rng,
+                                     self.low, self.high)
+        with torch.no_grad():
+            mean = self.net(torch.as_tensor(state, dtype=torch.float32)[None]).numpy()[0]
+        noisy = mean + cfg.guide_noise_std * self.rng.standard_normal(mean.shape)
+        return np.clip(noisy, self.low, self.high).astype(np.float32)
+
+
+def _train_guided(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
+    if ctx.demos is None:
+        raise ValueError("DRL-EG needs demonstrations")
+    agent = build_agent(ctx, config)
+    low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
+    high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
+    guidance = Guidance(config, ctx.demos, low, high, ctx.seed)
+    demo_return = ctx.demos.mean_return
+    policy_return = 0.0  # Algorithm 1: R_pi <- 0 before the first test
+
+    def choose_action(obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        if demo_return > policy_return:
+            action = guidance.guide(obs)
+            if action is not None:
+                return action, True
+        return agent.act(obs), False
+
+    def after_eval(mean_return: float) -> bool:
+        nonlocal policy_return
+        policy_return = mean_return
+        return demo_return > policy_return
+
+    return run_off_policy(ctx, agent, choose_action, after_eval)
+
+
+@register("drl-eg", DRLEGConfig, needs_demos=True)
+def train(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
+    """DRL-EG with the functional D(s) and G(s) of the paper, on top of SAC."""
+    return _train_guided(ctx, config)
+
+
+@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True)
+def train_gmm(ctx: TrainContext, config: DRLEGGMMConfig) -> ReplayBuffer:
+    """DRL-EG with the GMM discriminator (density above T) and the functional guider."""
+    return _train_guided(ctx, config)

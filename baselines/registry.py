@@ -1,0 +1,84 @@
+"""The algorithm registry: a module registers itself with one decorator and is found by name.
+
+Adding an algorithm takes one file in ``baselines/`` that defines a config dataclass and a
+``train(ctx, config)`` function decorated with :func:`register`; every module in the package
+is imported on first lookup, so nothing else needs editing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from baselines.common.context import TrainContext
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    name: str
+    config_cls: type
+    train: Callable[[TrainContext, Any], Any]
+    needs_demos: bool
+    summary: str
+
+    def make_config(self, overrides: dict[str, Any] | None = None) -> Any:
+        """The default config with ``overrides`` applied; unknown keys raise ``KeyError``."""
+        overrides = dict(overrides or {})
+        known = {f.name: f for f in dataclasses.fields(self.config_cls)}
+        unknown = sorted(set(overrides) - set(known))
+        if unknown:
+            raise KeyError(f"unknown hyperparameter(s) {unknown} for '{self.name}'; "
+                           f"known: {sorted(known)}")
+        return self.config_cls(**overrides)
+
+
+_REGISTRY: dict[str, Algorithm] = {}
+_discovered = False
+
+
+def register(name: str, config_cls: type, needs_demos: bool = False
+             ) -> Callable[[Callable], Callable]:
+    """Decorator for an algorithm's ``train`` function."""
+
+    def wrap(train: Callable) -> Callable:
+        if name in _REGISTRY and _REGISTRY[name].train is not train:
+            raise ValueError(f"algorithm '{name}' registered twice")
+        summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
+        _REGISTRY[name] = Algorithm(name, config_cls, train, needs_demos, summary)
+        return train
+
+    return wrap
+
+
+def _discover() -> None:
+    global _discovered
+    if _discovered:
+        return
+    import baselines
+
+    for module in pkgutil.iter_modules(baselines.__path__):
+        if not module.ispkg and module.name != "registry":
+            importlib.import_module(f"baselines.{module.name}")
+    _discovered = True
+
+
+def algorithms() -> dict[str, Algorithm]:
+    """Every registered algorithm, by name."""
+    _discover()
+    return dict(_REGISTRY)
+
+
+class UnknownAlgorithmError(ValueError):
+    pass
+
+
+def get_algorithm(name: str) -> Algorithm:
+    known = algorithms()
+    if name not in known:
+        raise UnknownAlgorithmError(
+            f"unknown algorithm '{name}'; known algorithms: {', '.join(sorted(known))}")
+    return known[name]

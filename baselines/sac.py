@@ -1,0 +1,198 @@
+"""Soft Actor-Critic as the DRL-EG paper uses it (Haarnoja et al. 2018, arXiv:1801.01290).
+
+Five networks: two soft Q-functions Q1, Q2, a state-value V, its Polyak-averaged copy V',
+and a tanh-squashed Gaussian policy pi. Per gradient step (paper eqs. 13-17):
+
+    y_q = reward_scale * r + gamma * (1 - terminated) * V'(s')
+    y_v = min(Q1, Q2)(s, a~pi) - log pi(a|s)
+    J_pi = E[log pi(a|s) - min(Q1, Q2)(s, a~pi)]
+
+The entropy temperature is 1 with rewards multiplied by ``reward_scale``, as in the SAC
+paper. Only termination stops bootstrapping; a time-limit truncation keeps V'(s').
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from baselines.common.buffer import Batch, ReplayBuffer
+from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
+from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
+from baselines.registry import register
+from envs import make_env
+
+
+@dataclass
+class SACConfig:
+    """Hyperparameters; defaults are Table 1 of Haarnoja et al. 2018 (arXiv:1801.01290, App. D)."""
+
+    learning_rate: float = 3e-4
+    batch_size: int = 256
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    buffer_size: int = 1_000_000
+    gamma: float = 0.99
+    tau: float = 0.005  # target smoothing coefficient for V'
+    reward_scale: float = 5.0  # Hopper, Walker2d, HalfCheetah and Ant all use 5 in the SAC paper
+    learning_starts: int = 1000  # transitions collected by the initial policy before updates
+    gradient_steps: int = 1  # per env step
+    torch_threads: int = 1  # one run per core is how the harness schedules runs
+
+    def __post_init__(self) -> None:
+        self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
+        if self.batch_size <= 0 or self.buffer_size <= 0:
+            raise ValueError("batch_size and buffer_size must be positive")
+
+
+def q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_values: torch.Tensor,
+             gamma: float, reward_scale: float) -> torch.Tensor:
+    """y_q = scale * r + gamma * (1 - terminated) * V'(s')."""
+    return reward_scale * rewards + gamma * (1.0 - terminated) * next_values
+
+
+def v_target(q_min: torch.Tensor, log_prob: torch.Tensor) -> torch.Tensor:
+    """y_v = min_i Q_i(s, a) - log pi(a|s), with a ~ pi(.|s)."""
+    return q_min - log_prob
+
+
+class SACAgent:
+    """The five networks, their optimisers, and one gradient step of SAC."""
+
+    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
+                 action_high: np.ndarray, config: SACConfig, seed: int, device: str = "cpu"):
+        self.config = config
+        self.device = torch.device(device)
+        # Weights come from this seed alone, so SAC and DRL-EG with one seed start identical.
+        torch.manual_seed(seed)
+        hidden = config.hidden_sizes
+        self.q1 = QNetwork(obs_dim, act_dim, hidden).to(self.device)
+        self.q2 = QNetwork(obs_dim, act_dim, hidden).to(self.device)
+        self.v = VNetwork(obs_dim, hidden).to(self.device)
+        self.v_target = copy.deepcopy(self.v)
+        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high,
+                                         hidden).to(self.device)
+        lr = config.learning_rate
+        self.q_optimizer = torch.optim.Adam([*self.q1.parameters(), *self.q2.parameters()], lr=lr)
+        self.v_optimizer = torch.optim.Adam(self.v.parameters(), lr=lr)
+        self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=lr)
+        self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
+        if deterministic:
+            action = self.policy.deterministic(obs_t)
+        else:
+            action, _ = self.policy.sample(obs_t, self.noise)
+        return action.squeeze(0).cpu().numpy()
+
+    def update(self, batch: Batch) -> dict[str, float]:
+        cfg = self.config
+        obs = batch.observations.to(self.device)
+        actions = batch.actions.to(self.device)
+
+        # Soft Q-functions regress on r + gamma V'(s') (eq. 15).
+        with torch.no_grad():
+            next_v = self.v_target(batch.next_observations.to(self.device))
+            y_q = q_target(batch.rewards.to(self.device), batch.terminated.to(self.device),
+                           next_v, cfg.gamma, cfg.reward_scale)
+        q_loss = 0.5 * F.mse_loss(self.q1(obs, actions), y_q) \
+            + 0.5 * F.mse_loss(self.q2(obs, actions), y_q)
+        self.q_optimizer.zero_grad()
+        q_loss.backward()
+        self.q_optimizer.step()
+
+        # V regresses on the soft value of a fresh policy action (eq. 15); the policy
+        # minimises the KL to the exponentiated Q through the reparameterisation (eq. 13-14).
+        new_actions, log_prob = self.policy.sample(obs, self.noise)
+        q_new = torch.min(self.q1(obs, new_actions), self.q2(obs, new_actions))
+        v_loss = 0.5 * F.mse_loss(self.v(obs), v_target(q_new, log_prob).detach())
+        policy_loss = (log_prob - q_new).mean()
+
+        self.v_optimizer.zero_grad()
+        v_loss.backward()
+        self.v_optimizer.step()
+        self.policy_optimizer.zero_grad()
+        policy_loss.backward()  # also leaves gradients on Q, cleared before the next Q step
+        self.policy_optimizer.step()
+
+        soft_update(self.v_target, self.v, cfg.tau)
+        return {"q_loss": q_loss.item(), "v_loss": v_loss.item(),
+                "policy_loss": policy_loss.item(), "entropy": -log_prob.mean().item()}
+
+
+# Chooses the executed action: returns (action, guided?). SAC samples its policy;
+# DRL-EG may hand the step to its guider.
+ActionChooser = Callable[[np.ndarray], tuple[np.ndarray, bool]]
+
+
+def run_off_policy(ctx: TrainContext, agent: SACAgent, choose_action: ActionChooser,
+                   after_eval: Callable[[float], bool | None] = lambda mean_return: None
+                   ) -> ReplayBuffer:
+    """The SAC training loop, shared with DRL-EG (Algorithm 1 of the paper).
+
+    ``after_eval`` sees each evaluation's mean return and may report a gate state.
+    The executed action is what goes in the buffer, guided or not; the buffer is returned.
+    """
+    cfg = agent.config
+    torch.set_num_threads(cfg.torch_threads)
+    env = make_env(ctx.env_id, seed=ctx.seed)
+    eval_env = make_env(ctx.env_id, seed=ctx.seed + EVAL_SEED_OFFSET)
+    obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    buffer = ReplayBuffer(obs_dim, act_dim, min(cfg.buffer_size, ctx.total_steps))
+    batch_rng = np.random.default_rng(ctx.seed)
+
+    def evaluate_and_record(step: int, guided_steps: int, steps_since: int) -> None:
+        returns = evaluate(eval_env, lambda o: agent.act(o, deterministic=True), ctx.eval_episodes)
+        gate = after_eval(float(np.mean(returns)))
+        fraction = guided_steps / steps_since if steps_since else float("nan")
+        ctx.on_eval(EvalPoint(step, tuple(returns), fraction, gate))
+
+    evaluate_and_record(0, 0, 0)
+    obs, _ = env.reset(seed=ctx.seed)
+    guided_steps = steps_since_eval = 0
+    for step in range(1, ctx.total_steps + 1):
+        action, guided = choose_action(obs)
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        buffer.add(obs, action, reward, next_obs, terminated)
+        obs = next_obs
+        if terminated or truncated:
+            obs, _ = env.reset()
+        guided_steps += guided
+        steps_since_eval += 1
+
+        if step >= cfg.learning_starts:
+            for _ in range(cfg.gradient_steps):
+                losses = agent.update(buffer.sample(cfg.batch_size, batch_rng))
+            if not np.isfinite(losses["q_loss"]):
+                raise FloatingPointError(f"SAC diverged at step {step}: losses {losses}")
+
+        if step % ctx.eval_interval == 0 or step == ctx.total_steps:
+            evaluate_and_record(step, guided_steps, steps_since_eval)
+            guided_steps = steps_since_eval = 0
+        ctx.on_steps(1)
+    env.close()
+    eval_env.close()
+    return buffer
+
+
+def build_agent(ctx: TrainContext, config: SACConfig) -> SACAgent:
+    probe = make_env(ctx.env_id)
+    space = probe.action_space
+    agent = SACAgent(probe.observation_space.shape[0], space.shape[0], space.low, space.high,
+                     config, seed=ctx.seed, device=ctx.device)
+    probe.close()
+    return agent
+
+
+@register("sac", SACConfig)
+def train(ctx: TrainContext, config: SACConfig) -> ReplayBuffer:
+    """SAC with a V network (Haarnoja et al. 2018), the paper's baseline and DRL-EG's base."""
+    agent = build_agent(ctx, config)
+    return run_off_policy(ctx, agent, lambda obs: (agent.act(obs), False))

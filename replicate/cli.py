@@ -1,0 +1,184 @@
+"""Command line: ``python -m replicate {train,demos,fig3,algos,envs} ...``."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import os
+import sys
+from pathlib import Path
+
+DEFAULT_STORE = Path(os.environ.get("REPLICATE_STORE", "runs"))
+
+
+def _parse_overrides(pairs: list[str]) -> dict:
+    """``KEY=VALUE`` strings to a dict; values are Python literals where they parse as one."""
+    from replicate.errors import HarnessError
+
+    overrides = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or not key:
+            raise HarnessError(f"--set expects KEY=VALUE, got '{pair}'",
+                               "write it like --set guide_threshold=0.1")
+        try:
+            overrides[key] = ast.literal_eval(raw)
+        except (ValueError, SyntaxError):
+            overrides[key] = raw
+    return overrides
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m replicate",
+        description="Replication harness for DRL-EG (SAC with demonstration-guided exploration).")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    train = sub.add_parser(
+        "train", help="train one run into the run store",
+        description="Train one run (algorithm x env x seed x budget) into the run store, "
+                    "with a progress bar. A run whose resolved spec is already complete in "
+                    "the store is not trained again.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    train.add_argument("--algo", required=True,
+                       help="algorithm name; `python -m replicate algos` lists them")
+    train.add_argument("--env", required=True,
+                       help="environment id, e.g. MountainCarContinuous-v0 or Hopper-v5; "
+                            "`python -m replicate envs` lists them")
+    train.add_argument("--steps", type=int, required=True,
+                       help="training budget in environment steps (> 0)")
+    train.add_argument("--seed", type=int, default=0,
+                       help="seed of env, weights, exploration and replay sampling")
+    train.add_argument("--eval-interval", type=int, default=None,
+                       help="env steps between evaluations (default: steps/20, at least 1)")
+    train.add_argument("--eval-episodes", type=int, default=5,
+                       help="deterministic-policy test episodes per evaluation")
+    train.add_argument("--demos", default=None,
+                       help="demonstration file (.npz) for algorithms that use demonstrations; "
+                            "default: the committed file of the env")
+    train.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                       help="override a hyperparameter, e.g. --set guide_threshold=0.1 "
+                            "(repeatable; `python -m replicate algos` shows them)")
+    train.add_argument("--store", type=Path, default=DEFAULT_STORE,
+                       help="run store directory (also set by $REPLICATE_STORE)")
+
+    demos = sub.add_parser(
+        "demos", help="make a demonstration file from the harness's own expert",
+        description="Roll out the expert of an env and save (s, a) pairs with provenance.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    demos.add_argument("--env", required=True, help="environment id")
+    demos.add_argument("--pairs", type=int, default=1000, help="number of (s, a) pairs")
+    demos.add_argument("--seed", type=int, default=0, help="seed of the expert rollouts")
+    demos.add_argument("--out", type=Path, default=None,
+                       help="output file (default: the package's committed demonstration path)")
+
+    fig3 = sub.add_parser(
+        "fig3", help="train what Fig. 3 needs and write its HTML report",
+        description="Run the Fig. 3 grid for a profile (only runs missing from the store are "
+                    "trained), then write the self-contained HTML report.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    fig3.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+                      help="budget profile: smoke (seconds, numbers mean nothing), quick "
+                           "(reduced replication, under an hour on 2 cores), paper")
+    fig3.add_argument("--seeds", type=int, default=None,
+                      help="number of seeds (default: the profile's)")
+    fig3.add_argument("--workers", type=int, default=None,
+                      help="parallel training processes (default: one per core)")
+    fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig3.add_argument("--out", type=Path, default=None,
+                      help="report directory (default: reports/fig3, or reports/smoke/fig3 "
+                           "for the smoke profile)")
+
+    sub.add_parser("algos", help="list algorithms and their default hyperparameters")
+    sub.add_parser("envs", help="list environments and their spec table")
+    return parser
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from replicate.runner import execute, prepare
+    from replicate.spec import RunSpec
+
+    eval_interval = args.eval_interval or max(1, args.steps // 20)
+    spec = RunSpec(algo=args.algo, env_id=args.env, seed=args.seed, total_steps=args.steps,
+                   eval_interval=eval_interval, eval_episodes=args.eval_episodes,
+                   hyperparameters=_parse_overrides(args.overrides), demos=args.demos)
+    prepared = prepare(spec)
+    with tqdm(total=spec.total_steps, unit="step", desc=prepared.run_id[:48],
+              dynamic_ncols=True) as bar:
+        run = execute(prepared, args.store, on_steps=bar.update)
+    prov = run.provenance
+    print(f"run: {run.path}")
+    print(f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
+          f"{prov['env_steps_per_s']} env steps/s")
+    return 0
+
+
+def _cmd_demos(args: argparse.Namespace) -> int:
+    from replicate.demos import default_demo_path, make_demos, save_demos
+
+    demos = make_demos(args.env, n_pairs=args.pairs, seed=args.seed)
+    path = save_demos(args.out or default_demo_path(args.env), demos)
+    meta = demos.metadata
+    print(f"wrote {path}: {meta['n_pairs']} pairs, expert return "
+          f"{meta['expert_return_mean']:.2f} +- {meta['expert_return_std']:.2f} over "
+          f"{meta['expert_episodes']} episodes, sha256 {meta['content_sha256'][:12]}")
+    return 0
+
+
+def _cmd_fig3(args: argparse.Namespace) -> int:
+    from replicate.experiments import run_figure3
+
+    out = args.out or (Path("reports/smoke/fig3") if args.profile == "smoke"
+                       else Path("reports/fig3"))
+    report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
+                         workers=args.workers)
+    print(f"report: {report}")
+    return 0
+
+
+def _cmd_algos(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from baselines.registry import algorithms
+
+    for name, algo in sorted(algorithms().items()):
+        print(f"{name}: {algo.summary}{' (uses demonstrations)' if algo.needs_demos else ''}")
+        for f in dataclasses.fields(algo.config_cls):
+            print(f"    {f.name} = {f.default!r}")
+    return 0
+
+
+def _cmd_envs(args: argparse.Namespace) -> int:
+    from envs import ENV_SPECS
+
+    print(f"{'env id':42} {'obs':>4} {'act':>4} {'limit':>6}  reward  paper")
+    for s in ENV_SPECS.values():
+        paper = f"{s.paper_env_id} ({s.paper_obs_dim}/{s.paper_act_dim})" if s.paper_env_id else "-"
+        print(f"{s.env_id:42} {s.obs_dim:>4} {s.act_dim:>4} {s.max_episode_steps:>6}  "
+              f"{s.reward_kind:6}  {paper}")
+    return 0
+
+
+COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "fig3": _cmd_fig3,
+            "algos": _cmd_algos, "envs": _cmd_envs}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from replicate.errors import HarnessError
+
+    args = _build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except HarnessError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: complete runs are kept in the store; run the same command again "
+              "to finish the rest", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

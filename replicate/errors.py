@@ -1,0 +1,16 @@
+"""User-facing errors: each says what is wrong and how to fix it, on one line."""
+
+from __future__ import annotations
+
+
+class HarnessError(Exception):
+    """An error caused by the user's input, reported as one line with a fix."""
+
+    def __init__(self, problem: str, fix: str):
+        super().__init__(f"{problem}; fix: {fix}")
+        self.problem = problem
+        self.fix = fix
+
+
+class DemoError(HarnessError):
+    """A demonstration file that cannot be used."""

@@ -1,0 +1,120 @@
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from replicate.cli import main
+from replicate.demos import default_demo_path
+
+MC = "MountainCarContinuous-v0"
+TINY_SET = ["--set", "hidden_sizes=(16,16)", "--set", "batch_size=16",
+            "--set", "learning_starts=50"]
+
+
+def run_cli(args, capsys):
+    code = main(args)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(code, err, *fragments):
+    assert code == 2
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "fix:" in lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def store_entries(store):
+    return sorted(p.name for p in store.iterdir()) if store.exists() else []
+
+
+@pytest.mark.parametrize("args, fragments", [
+    (["--algo", "sac", "--env", "Hopper-v2", "--steps", "10"], ["unknown env", "Hopper-v5"]),
+    (["--algo", "ddpg", "--env", MC, "--steps", "10"], ["unknown algorithm", "drl-eg", "sac"]),
+    (["--algo", "sac", "--env", MC, "--steps", "-5"], ["step count must be positive"]),
+    (["--algo", "sac", "--env", MC, "--steps", "10", "--set", "gamma_typo=0.9"],
+     ["unknown hyperparameter", "gamma_typo"]),
+])
+def test_bad_input_is_one_line_non_zero_and_leaves_nothing(tmp_path, capsys, args, fragments):
+    store = tmp_path / "store"
+    code, _, err = run_cli(["train", *args, "--store", str(store)], capsys)
+    assert_one_line_error(code, err, *fragments)
+    assert store_entries(store) == []
+
+
+def test_malformed_and_mismatched_demonstrations_are_refused(tmp_path, capsys):
+    store = tmp_path / "store"
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"not a zip file at all")
+    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
+                            "--demos", str(broken), "--store", str(store)], capsys)
+    assert_one_line_error(code, err, "malformed or truncated")
+
+    wrong_dims = tmp_path / "wrong.npz"
+    shutil.copy(default_demo_path(MC), wrong_dims)
+    with np.load(wrong_dims) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["actions"] = np.concatenate([arrays["actions"], arrays["actions"]], axis=1)
+    np.savez(wrong_dims, **arrays)
+    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
+                            "--demos", str(wrong_dims), "--store", str(store)], capsys)
+    assert_one_line_error(code, err, "dims 2/2", "2/1")
+
+    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
+                            "--demos", str(tmp_path / "absent.npz"), "--store", str(store)], capsys)
+    assert_one_line_error(code, err, "not found")
+    assert store_entries(store) == []
+
+
+def test_train_writes_a_complete_run_directory_and_skips_it_the_second_time(tmp_path, capsys):
+    store = tmp_path / "store"
+    args = ["train", "--algo", "drl-eg", "--env", MC, "--steps", "120", "--seed", "2",
+            "--eval-interval", "60", "--eval-episodes", "1", *TINY_SET, "--store", str(store)]
+    code, out, _ = run_cli(args, capsys)
+    assert code == 0
+    (run_dir,) = [p for p in store.iterdir()]
+    assert run_dir.name.startswith("drl-eg__MountainCarContinuous-v0__s2__")
+    spec = json.loads((run_dir / "spec.json").read_text())
+    prov = json.loads((run_dir / "provenance.json").read_text())
+    assert spec["hyperparameters"]["hidden_sizes"] == [16, 16]
+    assert spec["demos"]["n_pairs"] == 1000 and len(spec["demos"]["sha256"]) == 64
+    assert prov["seed"] == 2 and prov["wall_time_s"] > 0 and prov["versions"]["torch"]
+    assert prov["git_revision"]
+    curve = (run_dir / "curve.csv").read_text().splitlines()
+    assert curve[0].startswith("step,return_mean") and len(curve) == 1 + 3  # steps 0, 60, 120
+    mtime = (run_dir / "provenance.json").stat().st_mtime
+    code, _, _ = run_cli(args, capsys)
+    assert code == 0 and (run_dir / "provenance.json").stat().st_mtime == mtime
+
+
+def test_a_crashing_run_leaves_no_directory(tmp_path, capsys, monkeypatch):
+    import baselines.sac
+
+    def explode(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(baselines.sac, "evaluate", explode)
+    store = tmp_path / "store"
+    with pytest.raises(RuntimeError, match="boom"):
+        main(["train", "--algo", "sac", "--env", MC, "--steps", "10", "--store", str(store)])
+    assert store_entries(store) == []
+
+
+def test_help_explains_every_option():
+    result = subprocess.run([sys.executable, "-m", "replicate", "train", "--help"],
+                            capture_output=True, text=True, check=True)
+    for option in ("--algo", "--env", "--steps", "--seed", "--eval-interval", "--eval-episodes",
+                   "--demos", "--set", "--store"):
+        assert option in result.stdout
+    assert "environment steps" in result.stdout
+
+
+def test_listing_commands(capsys):
+    code, out, _ = run_cli(["algos"], capsys)
+    assert code == 0 and "drl-eg" in out and "guide_threshold" in out
+    code, out, _ = run_cli(["envs"], capsys)
+    assert code == 0 and "Ant-v2 (111/8)" in out

@@ -1,0 +1,120 @@
+import numpy as np
+import pytest
+import torch
+
+from baselines.drl_eg import (DRLEGConfig, fit_gmm, fit_neural_guider,
+                              functional_discriminator, functional_guider,
+                              gmm_discriminator, nearest_demo)
+from replicate.demos import default_demo_path, load_demos
+from tests.helpers import MOUNTAINCAR, curve_signature, train_tiny
+
+
+def test_nearest_demo_hand_computed():
+    demo_states = np.array([[0.0, 0.0], [3.0, 4.0], [1.0, 1.0]])
+    distance, index = nearest_demo(demo_states, np.array([3.0, 3.0]))
+    # distances: sqrt(18) = 4.24, 1, sqrt(8) = 2.83
+    assert index == 1 and distance == pytest.approx(1.0)
+
+
+def test_discriminator_guides_at_and_below_threshold_only():
+    assert functional_discriminator(1.0, threshold=1.0)
+    assert functional_discriminator(0.3, threshold=1.0)
+    assert not functional_discriminator(1.0, threshold=0.99)
+
+
+def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
+    demo_actions = np.array([[0.5, -0.2], [0.9, 0.95]])
+    low, high = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    rng = np.random.default_rng(0)
+    exact = functional_guider(demo_actions, 0, 0.0, rng, low, high)
+    np.testing.assert_allclose(exact, [0.5, -0.2], atol=1e-7)
+    samples = np.stack([functional_guider(demo_actions, 0, 0.1, rng, low, high)
+                        for _ in range(4000)])
+    np.testing.assert_allclose(samples.mean(0), [0.5, -0.2], atol=0.01)
+    np.testing.assert_allclose(samples.std(0), [0.1, 0.1], atol=0.01)
+    clipped = np.stack([functional_guider(demo_actions, 1, 0.5, rng, low, high)
+                        for _ in range(200)])
+    assert clipped.max() <= 1.0 and clipped.min() >= -1.0
+
+
+def test_config_rejects_negative_threshold():
+    with pytest.raises(ValueError):
+        DRLEGConfig(guide_threshold=-1.0)
+
+
+def test_zero_threshold_never_guides_so_drl_eg_equals_sac():
+    sac_curve, _ = train_tiny("sac", seed=5, steps=400)
+    drl_curve, _ = train_tiny("drl-eg", seed=5, steps=400, guide_threshold=0.0)
+    assert [p.returns for p in drl_curve] == [p.returns for p in sac_curve]
+    assert all(p.guided_fraction == 0.0 for p in drl_curve[1:])
+
+
+def test_large_threshold_guides_every_step_and_stores_the_executed_action():
+    curve, buffer = train_tiny("drl-eg", seed=0, steps=400, guide_threshold=1e6,
+                               guide_noise_std=0.0, learning_starts=10_000)
+    assert curve[1].guided_fraction == 1.0 and curve[1].gate_open
+    # with sigma = 0 the executed (and stored) action is the MountainCar rule's +-0.5
+    stored = buffer.actions[:400, 0]
+    assert set(np.round(stored, 6)) <= {-0.5, 0.5}
+
+
+def test_gate_closes_when_the_policy_beats_the_demonstrations(monkeypatch):
+    from replicate import demos as demos_module
+
+    original = demos_module.load_demos
+
+    def weak_demos(path, env_id):
+        loaded = original(path, env_id)
+        loaded.metadata = dict(loaded.metadata, expert_return_mean=-1e9)
+        return loaded
+
+    monkeypatch.setattr("tests.helpers.load_demos", weak_demos)
+    curve, _ = train_tiny("drl-eg", seed=0, steps=400, guide_threshold=1e6)
+    assert all(p.guided_fraction == 0.0 for p in curve[1:])
+    assert all(p.gate_open is False for p in curve)
+
+
+def test_same_seed_same_drl_eg_curve():
+    first, _ = train_tiny("drl-eg", seed=1, steps=400)
+    second, _ = train_tiny("drl-eg", seed=1, steps=400)
+    assert curve_signature(first) == curve_signature(second)
+
+
+def test_gmm_threshold_is_the_chosen_quantile_of_demo_densities():
+    rng = np.random.default_rng(0)
+    demo_states = rng.normal(size=(400, 2))
+    gmm, log_threshold = fit_gmm(demo_states, components=2, threshold_quantile=0.25, seed=0)
+    guided = [gmm_discriminator(gmm, s, log_threshold) for s in demo_states]
+    assert np.mean(guided) == pytest.approx(0.75, abs=0.01)
+    assert not gmm_discriminator(gmm, np.array([8.0, 8.0]), log_threshold)  # far away
+    assert gmm_discriminator(gmm, np.array([0.0, 0.0]), log_threshold)  # at the mode
+
+
+def test_neural_guider_learns_the_mountaincar_rule():
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    net = fit_neural_guider(demos, hidden=(32, 32), steps=600, seed=0)
+    states = torch.tensor([[-0.5, -0.03], [-0.5, 0.03]])
+    with torch.no_grad():
+        predicted = net(states).numpy()[:, 0]
+    assert predicted[0] < -0.3 and predicted[1] > 0.3  # the rule says -0.5 and +0.5
+
+
+def test_neural_guider_leaves_the_policy_initial_weights_alone():
+    first, _ = train_tiny("drl-eg", seed=3, steps=200, guide_threshold=0.0)
+    second, _ = train_tiny("drl-eg", seed=3, steps=200, guide_threshold=0.0,
+                           discriminator="gmm", gmm_threshold_quantile=1.0, guider="neural",
+                           neural_guider_steps=10, neural_guider_hidden=(8,))
+    # a quantile of 1 makes the GMM discriminator guide nowhere, so both runs are SAC
+    assert [p.returns for p in first] == [p.returns for p in second]
+
+
+def test_gmm_variant_is_registered_and_deterministic():
+    first, _ = train_tiny("drl-eg-gmm", seed=2, steps=300, gmm_components=2)
+    second, _ = train_tiny("drl-eg-gmm", seed=2, steps=300, gmm_components=2)
+    assert curve_signature(first) == curve_signature(second)
+    assert first[1].guided_fraction > 0.0  # the gate is open at the start and demos are near
+
+
+def test_unknown_discriminator_is_refused():
+    with pytest.raises(ValueError, match="discriminator must be one of"):
+        DRLEGConfig(discriminator="kde")

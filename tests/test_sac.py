@@ -1,0 +1,94 @@
+import math
+
+import numpy as np
+import torch
+from torch import distributions as D
+
+from baselines.common.networks import TanhGaussianPolicy, soft_update, VNetwork
+from baselines.common.context import TrainContext
+from baselines.sac import SACConfig, build_agent, q_target, v_target
+from baselines.drl_eg import DRLEGConfig
+from tests.helpers import MOUNTAINCAR, TINY, train_tiny
+
+
+def test_q_target_hand_computed():
+    # r = [1, 2], terminated = [0, 1], V'(s') = [10, 10], gamma = 0.99, scale = 5
+    y = q_target(torch.tensor([1.0, 2.0]), torch.tensor([0.0, 1.0]), torch.tensor([10.0, 10.0]),
+                 gamma=0.99, reward_scale=5.0)
+    assert torch.allclose(y, torch.tensor([5.0 + 9.9, 10.0]))
+
+
+def test_v_target_hand_computed():
+    y = v_target(torch.tensor([3.0, -1.0]), torch.tensor([0.5, -2.0]))
+    assert torch.allclose(y, torch.tensor([2.5, 1.0]))
+
+
+def test_soft_update_is_polyak_average():
+    torch.manual_seed(0)
+    source, target = VNetwork(2, (4,)), VNetwork(2, (4,))
+    before = [p.clone() for p in target.parameters()]
+    soft_update(target, source, tau=0.25)
+    for t, b, s in zip(target.parameters(), before, source.parameters()):
+        assert torch.allclose(t, 0.75 * b + 0.25 * s)
+
+
+def test_tanh_gaussian_log_prob_matches_torch_distributions():
+    torch.manual_seed(0)
+    low, high = np.array([-2.0, 0.0]), np.array([2.0, 1.0])
+    policy = TanhGaussianPolicy(3, 2, low, high, hidden_sizes=(8,))
+    obs = torch.randn(5, 3)
+    action, log_prob = policy.sample(obs, torch.Generator().manual_seed(1))
+    mean, log_std = policy(obs)
+    scale = torch.tensor((high - low) / 2, dtype=torch.float32)
+    bias = torch.tensor((high + low) / 2, dtype=torch.float32)
+    reference = D.TransformedDistribution(
+        D.Normal(mean, log_std.exp()),
+        [D.TanhTransform(cache_size=1), D.AffineTransform(bias, scale)])
+    expected = reference.log_prob(action).sum(-1)
+    assert torch.allclose(log_prob, expected, atol=1e-3)
+    assert torch.all(action >= torch.tensor(low, dtype=torch.float32))
+    assert torch.all(action <= torch.tensor(high, dtype=torch.float32))
+
+
+def test_truncated_transitions_are_stored_as_not_terminated_with_their_real_next_state():
+    # 1000 steps cross MountainCar's 999-step limit; no update happens (learning_starts > steps)
+    _, buffer = train_tiny("sac", steps=1000, learning_starts=5000)
+    assert buffer.terminated[:1000].sum() == 0.0
+    last_of_episode = 998
+    # the stored next state is the final state of the episode, not the reset state after it
+    assert not np.array_equal(buffer.next_observations[last_of_episode], buffer.observations[999])
+    np.testing.assert_array_equal(buffer.next_observations[997], buffer.observations[998])
+
+
+def test_same_seed_same_curve_on_cpu():
+    first, _ = train_tiny("sac", seed=3, steps=400)
+    second, _ = train_tiny("sac", seed=3, steps=400)
+    other, _ = train_tiny("sac", seed=4, steps=400)
+    assert [p.returns for p in first] == [p.returns for p in second]
+    assert [p.returns for p in first] != [p.returns for p in other]
+    assert [p.step for p in first] == [0, 200, 400]
+
+
+def test_sac_and_drl_eg_start_from_identical_weights():
+    ctx = TrainContext(env_id=MOUNTAINCAR, seed=11, total_steps=1, eval_interval=1,
+                       eval_episodes=1)
+    sac = build_agent(ctx, SACConfig(**TINY))
+    drl = build_agent(ctx, DRLEGConfig(**TINY))
+    for net in ("q1", "q2", "v", "v_target", "policy"):
+        a, b = getattr(sac, net).state_dict(), getattr(drl, net).state_dict()
+        assert all(torch.equal(a[k], b[k]) for k in a)
+    other = build_agent(TrainContext(env_id=MOUNTAINCAR, seed=12, total_steps=1, eval_interval=1,
+                                     eval_episodes=1), SACConfig(**TINY))
+    assert not torch.equal(other.policy.trunk[0].weight, sac.policy.trunk[0].weight)
+
+
+def test_update_reduces_q_loss_on_a_fixed_batch():
+    ctx = TrainContext(env_id=MOUNTAINCAR, seed=0, total_steps=1, eval_interval=1, eval_episodes=1)
+    agent = build_agent(ctx, SACConfig(hidden_sizes=(32, 32), learning_rate=1e-2))
+    from baselines.common.buffer import Batch
+    g = torch.Generator().manual_seed(0)
+    batch = Batch(torch.randn(64, 2, generator=g), torch.rand(64, 1, generator=g) * 2 - 1,
+                  torch.randn(64, generator=g), torch.randn(64, 2, generator=g), torch.zeros(64))
+    losses = [agent.update(batch)["q_loss"] for _ in range(60)]
+    assert all(math.isfinite(x) for x in losses)
+    assert losses[-1] < losses[0]

@@ -1,0 +1,36 @@
+import numpy as np
+
+from replicate.stats import bootstrap_mean, bootstrap_mean_difference, welch_test
+
+
+def test_bootstrap_mean_interval_contains_the_mean_and_is_reproducible():
+    scores = np.random.default_rng(0).normal(size=(6, 4))
+    a = bootstrap_mean(scores, np.random.default_rng(1))
+    b = bootstrap_mean(scores, np.random.default_rng(1))
+    np.testing.assert_allclose(a.value, scores.mean(0))
+    assert np.all(a.low <= a.value) and np.all(a.value <= a.high) and np.all(a.low < a.high)
+    np.testing.assert_array_equal(a.low, b.low)
+
+
+def test_bootstrap_interval_narrows_with_more_runs():
+    rng = np.random.default_rng(0)
+    few = bootstrap_mean(rng.normal(size=5), np.random.default_rng(1))
+    many = bootstrap_mean(rng.normal(size=500), np.random.default_rng(1))
+    assert (many.high - many.low)[0] < (few.high - few.low)[0]
+
+
+def test_constant_scores_give_a_zero_width_interval_and_one_run_none():
+    const = bootstrap_mean(np.zeros((4, 3)), np.random.default_rng(0))
+    np.testing.assert_array_equal(const.low, 0.0)
+    np.testing.assert_array_equal(const.high, 0.0)
+    single = bootstrap_mean(np.ones((1, 3)), np.random.default_rng(0))
+    assert np.isnan(single.low).all()
+
+
+def test_mean_difference_and_welch():
+    a, b = np.array([10.0, 11.0, 12.0, 13.0]), np.array([0.0, 1.0, -1.0, 0.5])
+    diff = bootstrap_mean_difference(a, b, np.random.default_rng(0))
+    assert diff.value == a.mean() - b.mean() and diff.low > 5 and diff.high < 15
+    t, p = welch_test(a, b)
+    assert t > 0 and p < 0.01
+    assert np.isnan(welch_test(np.zeros(3), np.zeros(3))[1])
