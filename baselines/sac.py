@@ -13,8 +13,9 @@ paper. Only termination stops bootstrapping; a time-limit truncation keeps V'(s'
 
 from __future__ import annotations
 
+import contextlib
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,19 @@ def q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_values: torch
 def v_target(q_min: torch.Tensor, log_prob: torch.Tensor) -> torch.Tensor:
     """y_v = min_i Q_i(s, a) - log pi(a|s), with a ~ pi(.|s)."""
     return q_min - log_prob
+
+
+@contextlib.contextmanager
+def frozen(*modules: torch.nn.Module) -> Iterator[None]:
+    """Build the graph through ``modules`` without asking for their weight gradients."""
+    params = [p for m in modules for p in m.parameters()]
+    for p in params:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in params:
+            p.requires_grad_(True)
 
 
 class SACAgent:
@@ -111,7 +125,8 @@ class SACAgent:
         # V regresses on the soft value of a fresh policy action (eq. 15); the policy
         # minimises the KL to the exponentiated Q through the reparameterisation (eq. 13-14).
         new_actions, log_prob = self.policy.sample(obs, self.noise)
-        q_new = torch.min(self.q1(obs, new_actions), self.q2(obs, new_actions))
+        with frozen(self.q1, self.q2):  # the policy step needs dQ/da, not Q's weight gradients
+            q_new = torch.min(self.q1(obs, new_actions), self.q2(obs, new_actions))
         v_loss = 0.5 * F.mse_loss(self.v(obs), v_target(q_new, log_prob).detach())
         policy_loss = (log_prob - q_new).mean()
 
@@ -119,7 +134,7 @@ class SACAgent:
         v_loss.backward()
         self.v_optimizer.step()
         self.policy_optimizer.zero_grad()
-        policy_loss.backward()  # also leaves gradients on Q, cleared before the next Q step
+        policy_loss.backward()
         self.policy_optimizer.step()
 
         soft_update(self.v_target, self.v, cfg.tau)
