@@ -1,11 +1,13 @@
 """Demonstration files: making, saving, and loading them with validation.
 
-A demonstration file is a ``.npz`` with three entries, read without pickle:
+A demonstration file is a ``.npz`` read without pickle. The paper's demonstrations are
+(s, a) pairs; DDPGfD also needs what followed each pair, so the harness stores it too:
 
-- ``observations``: (n, obs_dim) float32
-- ``actions``: (n, act_dim) float32
+- ``observations``: (n, obs_dim) float32 and ``actions``: (n, act_dim) float32
+- optional, all or none: ``rewards`` (n,), ``next_observations`` (n, obs_dim),
+  ``terminated`` (n,) and ``truncated`` (n,) of the step taken from each pair
 - ``metadata``: a JSON string (env id and version, number of pairs, expert returns, how it
-  was made, the command that regenerates it, and a SHA-256 of the two arrays)
+  was made, the command that regenerates it, and a SHA-256 of all the arrays)
 
 Loading checks everything it can and refuses a file with a one-line :class:`DemoError`.
 """
@@ -31,25 +33,45 @@ FORMAT_VERSION = 1
 DEMO_DATA_DIR = "data/demos"
 
 
+TRANSITION_ARRAYS = ("rewards", "next_observations", "terminated", "truncated")
+
+
 @dataclass
 class Demonstrations:
     observations: np.ndarray
     actions: np.ndarray
     metadata: dict[str, Any] = field(default_factory=dict)
+    rewards: np.ndarray | None = None
+    next_observations: np.ndarray | None = None
+    terminated: np.ndarray | None = None
+    truncated: np.ndarray | None = None
 
     @property
     def mean_return(self) -> float:
         return float(self.metadata["expert_return_mean"])
 
     @property
+    def has_transitions(self) -> bool:
+        return self.rewards is not None
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array present, by its name in the file."""
+        named = {"observations": self.observations, "actions": self.actions}
+        if self.has_transitions:
+            named.update({name: getattr(self, name) for name in TRANSITION_ARRAYS})
+        return named
+
+    @property
     def sha256(self) -> str:
-        return content_sha256(self.observations, self.actions)
+        return content_sha256(self.arrays())
 
 
-def content_sha256(observations: np.ndarray, actions: np.ndarray) -> str:
+def content_sha256(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 over the arrays in a fixed order, as little-endian float32."""
     digest = hashlib.sha256()
-    for array in (observations, actions):
-        digest.update(np.ascontiguousarray(array, dtype="<f4").tobytes())
+    for name in ("observations", "actions", *TRANSITION_ARRAYS):
+        if name in arrays:
+            digest.update(np.ascontiguousarray(arrays[name], dtype="<f4").tobytes())
     return digest.hexdigest()
 
 
@@ -68,9 +90,11 @@ def save_demos(path: Path, demos: Demonstrations) -> Path:
     os.close(fd)
     try:
         with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, observations=demos.observations.astype(np.float32),
-                                actions=demos.actions.astype(np.float32),
+            arrays = {name: np.asarray(values, dtype=np.float32)
+                      for name, values in demos.arrays().items()}
+            np.savez_compressed(handle, **arrays,
                                 metadata=np.array(json.dumps(metadata, indent=1, sort_keys=True)))
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a demonstration file is shared
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -96,6 +120,11 @@ def load_demos(path: Path | str, env_id: str) -> Demonstrations:
                 raise DemoError(f"demonstration file {path} lacks {sorted(missing)}", regenerate)
             observations, actions = data["observations"], data["actions"]
             metadata = json.loads(str(data["metadata"]))
+            present = [name for name in TRANSITION_ARRAYS if name in data.files]
+            if present and len(present) != len(TRANSITION_ARRAYS):
+                raise DemoError(f"demonstration file {path} holds {present} but not all of "
+                                f"{list(TRANSITION_ARRAYS)}", regenerate)
+            transitions = {name: data[name] for name in present}
     except DemoError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
@@ -115,12 +144,25 @@ def load_demos(path: Path | str, env_id: str) -> Demonstrations:
                         f"{spec.obs_dim}/{spec.act_dim}", regenerate)
     if len(observations) == 0:
         raise DemoError(f"demonstration file {path} holds no pairs", regenerate)
-    if not (np.isfinite(observations).all() and np.isfinite(actions).all()):
+    if transitions:
+        n, expected = len(observations), {"rewards": (len(observations),),
+                                          "next_observations": observations.shape,
+                                          "terminated": (len(observations),),
+                                          "truncated": (len(observations),)}
+        for name, shape in expected.items():
+            if transitions[name].shape != shape:
+                raise DemoError(f"demonstration file {path} has {name} of shape "
+                                f"{transitions[name].shape}, expected {shape} for {n} pairs",
+                                regenerate)
+    if not all(np.isfinite(a).all() for a in (observations, actions, *transitions.values())):
         raise DemoError(f"demonstration file {path} contains NaN or inf values", regenerate)
     if metadata.get("n_pairs") != len(observations):
         raise DemoError(f"demonstration file {path} declares {metadata.get('n_pairs')} pairs "
                         f"but holds {len(observations)}", regenerate)
-    demos = Demonstrations(observations.astype(np.float32), actions.astype(np.float32), metadata)
+    transitions = {name: np.asarray(values, dtype=np.float32)
+                   for name, values in transitions.items()}
+    demos = Demonstrations(observations.astype(np.float32), actions.astype(np.float32), metadata,
+                           **transitions)
     if metadata.get("content_sha256") != demos.sha256:
         raise DemoError(f"demonstration file {path} does not match its content hash "
                         "(edited or corrupted)", regenerate)
@@ -145,6 +187,7 @@ def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
                         "pass --pairs 1000 (the paper's number)")
     env = make_env(env_id, seed=seed)
     observations, actions, episode_returns = [], [], []
+    rewards, next_observations, terminals, truncations = [], [], [], []
     obs, _ = env.reset(seed=seed)
     while len(observations) < n_pairs:
         done, total = False, 0.0
@@ -153,6 +196,10 @@ def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
             observations.append(obs)
             actions.append(action)
             obs, reward, terminated, truncated, _ = env.step(action)
+            rewards.append(reward)
+            next_observations.append(obs)
+            terminals.append(terminated)
+            truncations.append(truncated)
             total += reward
             done = terminated or truncated
         episode_returns.append(total)
@@ -174,8 +221,12 @@ def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
         "seed": seed,
         "command": command,
     }
-    return Demonstrations(np.asarray(observations[:n_pairs], dtype=np.float32),
-                          np.asarray(actions[:n_pairs], dtype=np.float32), metadata)
+    def first(values: list) -> np.ndarray:
+        return np.asarray(values[:n_pairs], dtype=np.float32)
+
+    return Demonstrations(first(observations), first(actions), metadata,
+                          rewards=first(rewards), next_observations=first(next_observations),
+                          terminated=first(terminals), truncated=first(truncations))
 
 
 RULE_EXPERTS = {
