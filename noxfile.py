@@ -35,9 +35,33 @@ def replicate_fig3(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+# Experts of the paper's MuJoCo envs and of the dm-control tasks (the sparse cartpole uses
+# the dense one's). Kept here as data so the session reads without importing the package.
+EXPERT_ENVS = ["Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",
+               "dm_control/cartpole-swingup-v0", "dm_control/ball_in_cup-catch-v0",
+               "dm_control/walker-walk-v0"]
+DEMO_ENVS = ["MountainCarContinuous-v0", *EXPERT_ENVS, "dm_control/cartpole-swingup_sparse-v0"]
+
+
+@nox.session(python=PYTHON)
+def experts(session: nox.Session) -> None:
+    """Train (or resume) the SAC experts: `-- --env Hopper-v5 --steps 1000000` for one."""
+    _install(session)
+    args = list(session.posargs)
+    envs = [None] if "--env" in args else EXPERT_ENVS
+    for env_id in envs:
+        session.run("python", "-m", "replicate", "expert",
+                    *(["--env", env_id] if env_id else []), *args, env={"MUJOCO_GL": "disable"})
+
+
 @nox.session(python=PYTHON)
 def demos(session: nox.Session) -> None:
-    """Regenerate the committed demonstrations (MountainCar's rule expert for now)."""
+    """Regenerate the committed demonstrations from the rule and the committed experts."""
     _install(session)
-    session.run("python", "-m", "replicate", "demos", "--env", "MountainCarContinuous-v0",
-                *session.posargs)
+    envs = DEMO_ENVS if not session.posargs else []
+    for env_id in envs:
+        session.run("python", "-m", "replicate", "demos", "--env", env_id,
+                    env={"MUJOCO_GL": "disable"})
+    if session.posargs:
+        session.run("python", "-m", "replicate", "demos", *session.posargs,
+                    env={"MUJOCO_GL": "disable"})

@@ -18,6 +18,7 @@ is stored in the replay buffer.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -27,7 +28,7 @@ from baselines.common.buffer import ReplayBuffer
 from baselines.common.context import DemoSet, TrainContext
 from baselines.common.networks import mlp
 from baselines.registry import register
-from baselines.sac import SACConfig, build_agent, run_off_policy
+from baselines.sac import PolicyExplorer, SACAgent, SACConfig, build_agent, run_off_policy
 
 DISCRIMINATORS = ("functional", "gmm")
 GUIDERS = ("functional", "neural")
@@ -153,29 +154,41 @@ class Guidance:
         return np.clip(noisy, self.low, self.high).astype(np.float32)
 
 
+class GuidedExplorer(PolicyExplorer):
+    """Algorithm 1's choice of action: the guider's while R_demo > R_pi and D(s) = 1."""
+
+    def __init__(self, agent: SACAgent, guidance: Guidance, demo_return: float):
+        super().__init__(agent)
+        self.guidance, self.demo_return = guidance, demo_return
+        self.policy_return = 0.0  # Algorithm 1: R_pi <- 0 before the first test
+
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        if self.demo_return > self.policy_return:
+            action = self.guidance.guide(obs)
+            if action is not None:
+                return action, True
+        return self.agent.act(obs), False
+
+    def after_eval(self, mean_return: float) -> bool:
+        self.policy_return = mean_return
+        return self.demo_return > self.policy_return
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"policy_return": self.policy_return, "guider_rng": self.guidance.rng}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.policy_return = state["policy_return"]
+        self.guidance.rng = state["guider_rng"]
+
+
 def _train_guided(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
     if ctx.demos is None:
         raise ValueError("DRL-EG needs demonstrations")
     agent = build_agent(ctx, config)
     low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
     high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
-    guidance = Guidance(config, ctx.demos, low, high, ctx.seed)
-    demo_return = ctx.demos.mean_return
-    policy_return = 0.0  # Algorithm 1: R_pi <- 0 before the first test
-
-    def choose_action(obs: np.ndarray) -> tuple[np.ndarray, bool]:
-        if demo_return > policy_return:
-            action = guidance.guide(obs)
-            if action is not None:
-                return action, True
-        return agent.act(obs), False
-
-    def after_eval(mean_return: float) -> bool:
-        nonlocal policy_return
-        policy_return = mean_return
-        return demo_return > policy_return
-
-    return run_off_policy(ctx, agent, choose_action, after_eval)
+    guidance = Guidance(config, ctx.demos, low, high, ctx.seed)  # refitted the same on resume
+    return run_off_policy(ctx, agent, GuidedExplorer(agent, guidance, ctx.demos.mean_return))
 
 
 @register("drl-eg", DRLEGConfig, needs_demos=True)

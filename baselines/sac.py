@@ -15,14 +15,17 @@ from __future__ import annotations
 
 import contextlib
 import copy
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
+from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
+                                         save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
@@ -97,6 +100,21 @@ class SACAgent:
         self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=lr)
         self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
 
+    def state_dict(self) -> dict[str, Any]:
+        """Networks, optimisers and the exploration noise stream: all a resume needs."""
+        modules = ("q1", "q2", "v", "v_target", "policy",
+                   "q_optimizer", "v_optimizer", "policy_optimizer")
+        state = {name: getattr(self, name).state_dict() for name in modules}
+        state["noise"] = self.noise.get_state()
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name, value in state.items():
+            if name == "noise":
+                self.noise.set_state(value)
+            else:
+                getattr(self, name).load_state_dict(value)
+
     @torch.no_grad()
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
@@ -142,18 +160,34 @@ class SACAgent:
                 "policy_loss": policy_loss.item(), "entropy": -log_prob.mean().item()}
 
 
-# Chooses the executed action: returns (action, guided?). SAC samples its policy;
-# DRL-EG may hand the step to its guider.
-ActionChooser = Callable[[np.ndarray], tuple[np.ndarray, bool]]
+class PolicyExplorer:
+    """Chooses the executed action and may see each evaluation. SAC samples its policy;
+    DRL-EG's explorer may hand the step to its guider."""
+
+    def __init__(self, agent: SACAgent):
+        self.agent = agent
+
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The action to execute and whether a guider chose it."""
+        return self.agent.act(obs), False
+
+    def after_eval(self, mean_return: float) -> bool | None:
+        """See an evaluation's mean return; report a gate state if there is one."""
+        return None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        pass
 
 
-def run_off_policy(ctx: TrainContext, agent: SACAgent, choose_action: ActionChooser,
-                   after_eval: Callable[[float], bool | None] = lambda mean_return: None
-                   ) -> ReplayBuffer:
+def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer) -> ReplayBuffer:
     """The SAC training loop, shared with DRL-EG (Algorithm 1 of the paper).
 
-    ``after_eval`` sees each evaluation's mean return and may report a gate state.
     The executed action is what goes in the buffer, guided or not; the buffer is returned.
+    With ``ctx.checkpoint_path`` set, the loop checkpoints at episode ends and resumes from
+    a checkpoint it finds there.
     """
     cfg = agent.config
     torch.set_num_threads(cfg.torch_threads)
@@ -162,23 +196,56 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, choose_action: ActionChoo
     obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]
     buffer = ReplayBuffer(obs_dim, act_dim, min(cfg.buffer_size, ctx.total_steps))
     batch_rng = np.random.default_rng(ctx.seed)
+    curve: list[EvalPoint] = []
+    best_return = -np.inf
 
     def evaluate_and_record(step: int, guided_steps: int, steps_since: int) -> None:
+        nonlocal best_return
         returns = evaluate(eval_env, lambda o: agent.act(o, deterministic=True), ctx.eval_episodes)
-        gate = after_eval(float(np.mean(returns)))
+        gate = explorer.after_eval(float(np.mean(returns)))
         fraction = guided_steps / steps_since if steps_since else float("nan")
-        ctx.on_eval(EvalPoint(step, tuple(returns), fraction, gate))
+        point = EvalPoint(step, tuple(returns), fraction, gate)
+        curve.append(point)
+        ctx.on_eval(point)
+        if ctx.best_policy_path is not None and point.mean_return > best_return:
+            best_return = point.mean_return
+            save_checkpoint(ctx.best_policy_path, {"policy": agent.policy.state_dict(),
+                                                   "step": step, "mean_return": best_return})
 
-    evaluate_and_record(0, 0, 0)
-    obs, _ = env.reset(seed=ctx.seed)
-    guided_steps = steps_since_eval = 0
-    for step in range(1, ctx.total_steps + 1):
-        action, guided = choose_action(obs)
+    def save(step: int) -> None:
+        save_checkpoint(ctx.checkpoint_path, {
+            "step": step, "agent": agent.state_dict(), "explorer": explorer.state_dict(),
+            "buffer": buffer.state_dict(), "batch_rng": batch_rng, "curve": curve,
+            "counters": (guided_steps, steps_since_eval, best_return),
+            "env_rng": env_rng_state(env), "eval_env_rng": env_rng_state(eval_env)})
+
+    resumed = load_checkpoint(ctx.checkpoint_path)
+    if resumed is None:
+        start = 1
+        evaluate_and_record(0, 0, 0)
+        obs, _ = env.reset(seed=ctx.seed)
+        guided_steps = steps_since_eval = 0
+    else:
+        start = resumed["step"] + 1
+        agent.load_state_dict(resumed["agent"])
+        explorer.load_state_dict(resumed["explorer"])
+        buffer.load_state_dict(resumed["buffer"])
+        batch_rng = resumed["batch_rng"]
+        guided_steps, steps_since_eval, best_return = resumed["counters"]
+        restore_env_rng(env, resumed["env_rng"])
+        restore_env_rng(eval_env, resumed["eval_env_rng"])
+        for point in resumed["curve"]:
+            curve.append(point)
+            ctx.on_eval(point)
+        ctx.on_steps(resumed["step"])
+        obs, _ = env.reset()  # checkpoints are taken where an episode has just ended
+    last_checkpoint = start - 1
+
+    for step in range(start, ctx.total_steps + 1):
+        action, guided = explorer.choose(obs)
         next_obs, reward, terminated, truncated, _ = env.step(action)
         buffer.add(obs, action, reward, next_obs, terminated)
         obs = next_obs
-        if terminated or truncated:
-            obs, _ = env.reset()
         guided_steps += guided
         steps_since_eval += 1
 
@@ -192,6 +259,12 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, choose_action: ActionChoo
             evaluate_and_record(step, guided_steps, steps_since_eval)
             guided_steps = steps_since_eval = 0
         ctx.on_steps(1)
+        if terminated or truncated:
+            if ctx.checkpoint_path is not None and step < ctx.total_steps \
+                    and due(step, last_checkpoint, ctx.checkpoint_interval):
+                save(step)
+                last_checkpoint = step
+            obs, _ = env.reset()
     env.close()
     eval_env.close()
     return buffer
@@ -210,4 +283,4 @@ def build_agent(ctx: TrainContext, config: SACConfig) -> SACAgent:
 def train(ctx: TrainContext, config: SACConfig) -> ReplayBuffer:
     """SAC with a V network (Haarnoja et al. 2018), the paper's baseline and DRL-EG's base."""
     agent = build_agent(ctx, config)
-    return run_off_policy(ctx, agent, lambda obs: (agent.act(obs), False))
+    return run_off_policy(ctx, agent, PolicyExplorer(agent))

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,fig3,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -72,6 +72,26 @@ def _build_parser() -> argparse.ArgumentParser:
     demos.add_argument("--out", type=Path, default=None,
                        help="output file (default: the package's committed demonstration path)")
 
+    expert = sub.add_parser(
+        "expert", help="train (or resume) the harness's SAC expert of an env",
+        description="Train the SAC expert of an env with checkpoints in --root/<env>/; "
+                    "started again, it resumes from the last checkpoint. The policy with the "
+                    "best evaluation is exported, with its provenance, to the package's "
+                    "expert file, from which `demos` rolls out demonstrations.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    expert.add_argument("--env", required=True, help="environment id, e.g. Hopper-v5")
+    expert.add_argument("--steps", type=int, default=1_000_000,
+                        help="training budget in env steps (the SAC paper's 1M)")
+    expert.add_argument("--seed", type=int, default=0, help="seed of the expert run")
+    expert.add_argument("--root", type=Path, default=Path("experts"),
+                        help="work directory for checkpoints and progress")
+    expert.add_argument("--eval-interval", type=int, default=10_000,
+                        help="env steps between evaluations (the best one is kept)")
+    expert.add_argument("--checkpoint-interval", type=int, default=10_000,
+                        help="env steps between checkpoints (taken at the next episode end)")
+    expert.add_argument("--export-only", action="store_true",
+                        help="do not train; export the best policy found so far")
+
     fig3 = sub.add_parser(
         "fig3", help="train what Fig. 3 needs and write its HTML report",
         description="Run the Fig. 3 grid for a profile (only runs missing from the store are "
@@ -127,6 +147,28 @@ def _cmd_demos(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_expert(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from replicate.experts import export_expert, train_expert
+
+    if args.export_only:
+        path = export_expert(args.env, args.root)
+    else:
+        with tqdm(total=args.steps, unit="step", desc=f"expert {args.env}",
+                  dynamic_ncols=True, mininterval=2.0) as bar:
+            path = train_expert(args.env, args.steps, args.root, args.seed,
+                                eval_interval=args.eval_interval,
+                                checkpoint_interval=args.checkpoint_interval,
+                                on_steps=bar.update)
+    import torch
+
+    meta = torch.load(path, weights_only=True)["metadata"]
+    print(f"expert: {path}: best evaluation {meta['best_eval_return']:.1f} at step "
+          f"{meta['best_step']:,} of {meta['steps_trained']:,}; wall {meta['wall_time_s']:.0f} s")
+    return 0
+
+
 def _cmd_fig3(args: argparse.Namespace) -> int:
     from replicate.experiments import run_figure3
 
@@ -161,7 +203,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "fig3": _cmd_fig3,
+COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3,
             "algos": _cmd_algos, "envs": _cmd_envs}
 
 

@@ -176,9 +176,11 @@ def mountaincar_rule(obs: np.ndarray) -> np.ndarray:
     return np.array([-0.5 if obs[1] < 0 else 0.5], dtype=np.float32)
 
 
-def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
-                       description: str) -> Demonstrations:
-    """Roll whole episodes of ``rule`` until ``n_pairs`` pairs exist; keep the first ``n_pairs``.
+def rollout_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
+                  description: str, min_episodes: int = 1,
+                  extra_metadata: dict[str, Any] | None = None) -> Demonstrations:
+    """Roll whole episodes of ``rule`` until ``n_pairs`` pairs and ``min_episodes`` episodes
+    exist; keep the first ``n_pairs`` pairs.
 
     The expert return is measured over every episode rolled, all of them complete.
     """
@@ -189,7 +191,7 @@ def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
     observations, actions, episode_returns = [], [], []
     rewards, next_observations, terminals, truncations = [], [], [], []
     obs, _ = env.reset(seed=seed)
-    while len(observations) < n_pairs:
+    while len(observations) < n_pairs or len(episode_returns) < min_episodes:
         done, total = False, 0.0
         while not done:
             action = rule(obs)
@@ -220,6 +222,7 @@ def rollout_rule_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
         "expert_return_std": float(np.std(episode_returns)),
         "seed": seed,
         "command": command,
+        **(extra_metadata or {}),
     }
     def first(values: list) -> np.ndarray:
         return np.asarray(values[:n_pairs], dtype=np.float32)
@@ -236,12 +239,30 @@ RULE_EXPERTS = {
 }
 
 
+EXPERT_RETURN_EPISODES = 10  # the expert's return is judged over at least this many episodes
+
+
 def make_demos(env_id: str, n_pairs: int = 1000, seed: int = 0) -> Demonstrations:
-    """Demonstrations for ``env_id`` from the harness's own experts (rule experts for now)."""
+    """Demonstrations for ``env_id`` from the harness's own experts: the paper's rule on
+    MountainCar, elsewhere the committed SAC expert (``replicate.experts``)."""
+    from replicate.experts import ExpertPolicy, expert_path
+
     env_spec(env_id)  # unknown ids fail here with the list of known ones
-    if env_id not in RULE_EXPERTS:
+    command = f"python -m replicate demos --env {env_id} --pairs {n_pairs} --seed {seed}"
+    if env_id in RULE_EXPERTS:
+        rule, description = RULE_EXPERTS[env_id]
+        return rollout_demos(env_id, rule, n_pairs, seed, command, description)
+    if not expert_path(env_id).is_file():
         raise DemoError(f"no expert is available yet to make demonstrations for {env_id}",
-                        f"use one of {sorted(RULE_EXPERTS)} or pass --demos with your own file")
-    rule, description = RULE_EXPERTS[env_id]
-    command = (f"python -m replicate demos --env {env_id} --pairs {n_pairs} --seed {seed}")
-    return rollout_rule_demos(env_id, rule, n_pairs, seed, command, description)
+                        "train one with `python -m replicate expert --env ENV` (see "
+                        "`nox -s experts`) or pass --demos with your own file")
+    expert = ExpertPolicy(env_id)
+    meta = expert.metadata
+    description = (f"deterministic policy of the harness's {meta['algo'].upper()} expert for "
+                   f"{meta['env_id']} (best evaluation {meta['best_eval_return']:.1f} at step "
+                   f"{meta['best_step']:,} of {meta['steps_trained']:,} trained)")
+    extra = {"expert_algo": meta["algo"], "expert_env_id": meta["env_id"],
+             "expert_steps_trained": meta["steps_trained"], "expert_budget": meta["budget_steps"],
+             "expert_file_command": meta["command"]}
+    return rollout_demos(env_id, expert, n_pairs, seed, command, description,
+                         min_episodes=EXPERT_RETURN_EPISODES, extra_metadata=extra)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -44,3 +45,10 @@ class TrainContext:
     device: str = "cpu"
     on_eval: Callable[[EvalPoint], None] = field(default=lambda point: None)
     on_steps: Callable[[int], None] = field(default=lambda n: None)  # progress, in env steps
+    # Resume: where the algorithm keeps its checkpoint, and how many env steps apart (at
+    # the first episode end after each interval; 0 = never). An algorithm that finds a
+    # checkpoint there resumes from it and re-emits the curve points it already had.
+    checkpoint_path: Path | None = None
+    checkpoint_interval: int = 0
+    # Where to keep the weights of the policy with the best evaluation so far (experts).
+    best_policy_path: Path | None = None

@@ -1,0 +1,157 @@
+"""Experts: the harness trains its own, with its own SAC, and rolls them out for demonstrations.
+
+The paper took its MuJoCo demonstrations from "the best trained SAC or TD3 agent" and never
+released them. Here an expert is a SAC run that checkpoints into a work directory
+(``experts/<env>/`` by default, not committed: it holds the replay buffer) and resumes from
+there when started again, so an expert can be trained over several sittings. The policy
+with the best evaluation so far is kept; exporting writes it with its provenance into the
+package (``replicate/data/experts``), small enough to commit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from baselines.common.checkpoint import save_checkpoint
+from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.networks import TanhGaussianPolicy
+from baselines.registry import get_algorithm
+from envs import env_spec, make_env
+from replicate import provenance
+from replicate.errors import HarnessError
+
+EXPERT_DATA_DIR = "data/experts"
+EXPERT_ALGO = "sac"
+# A sparse-reward task takes the expert of its dense twin: same dynamics and observations.
+EXPERT_SOURCE: dict[str, str] = {
+    "dm_control/cartpole-swingup_sparse-v0": "dm_control/cartpole-swingup-v0",
+}
+EXPERT_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",
+               "dm_control/cartpole-swingup-v0", "dm_control/ball_in_cup-catch-v0",
+               "dm_control/walker-walk-v0")
+
+
+def _file_name(env_id: str) -> str:
+    return env_id.replace("/", "__")
+
+
+def expert_path(env_id: str) -> Path:
+    """Where the committed expert policy of ``env_id`` lives inside the package."""
+    from importlib import resources
+
+    source = EXPERT_SOURCE.get(env_id, env_id)
+    return Path(str(resources.files("replicate").joinpath(EXPERT_DATA_DIR,
+                                                          f"{_file_name(source)}.pt")))
+
+
+def work_dir_for(env_id: str, root: Path) -> Path:
+    return Path(root) / _file_name(env_id)
+
+
+def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: int = 0,
+                 eval_interval: int = 10_000, eval_episodes: int = 5,
+                 checkpoint_interval: int = 10_000,
+                 on_steps: Callable[[int], None] = lambda n: None) -> Path:
+    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
+    env_spec(env_id)
+    if env_id in EXPERT_SOURCE:
+        raise HarnessError(f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
+                           f"train that one: --env {EXPERT_SOURCE[env_id]}")
+    if steps <= 0:
+        raise HarnessError(f"step count must be positive, got {steps}", "pass --steps N, N > 0")
+    work = work_dir_for(env_id, root)
+    work.mkdir(parents=True, exist_ok=True)
+    progress_file = work / "progress.json"
+    previous = json.loads(progress_file.read_text()) if progress_file.is_file() else {}
+    if previous.get("total_steps", steps) != steps:
+        # the budget is part of the run (beta-free SAC has no schedule, but keep it honest)
+        raise HarnessError(f"{work} holds an expert run with budget {previous['total_steps']}, "
+                           f"not {steps}", f"pass --steps {previous['total_steps']} or remove {work}")
+    earlier_wall = float(previous.get("wall_time_s_before_this_sitting", 0.0))
+    earlier_wall += float(previous.get("wall_time_s_this_sitting", 0.0))
+    started = time.time()
+    curve: list[EvalPoint] = []
+
+    def on_eval(point: EvalPoint) -> None:
+        curve.append(point)
+        best = max(curve, key=lambda p: p.mean_return)
+        progress_file.write_text(json.dumps({
+            "env_id": env_id, "algo": EXPERT_ALGO, "seed": seed, "total_steps": steps,
+            "steps_done": point.step, "best_step": best.step,
+            "best_mean_return": best.mean_return,
+            "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
+            "wall_time_s_before_this_sitting": earlier_wall,
+            "wall_time_s_this_sitting": time.time() - started}, indent=1))
+
+    algorithm = get_algorithm(EXPERT_ALGO)
+    config = algorithm.make_config({})
+    ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
+                       eval_episodes=eval_episodes, on_eval=on_eval, on_steps=on_steps,
+                       checkpoint_path=work / "checkpoint.pt",
+                       checkpoint_interval=checkpoint_interval,
+                       best_policy_path=work / "best_policy.pt")
+    algorithm.train(ctx, config)
+    (work / "checkpoint.pt").unlink(missing_ok=True)  # finished: the buffer is not needed
+    return export_expert(env_id, root)
+
+
+def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
+    """Write the best policy so far, with its provenance, to the package's expert file."""
+    work = work_dir_for(env_id, root)
+    best_file, progress_file = work / "best_policy.pt", work / "progress.json"
+    if not best_file.is_file() or not progress_file.is_file():
+        raise HarnessError(f"no expert training found in {work}",
+                           f"train one first: python -m replicate expert --env {env_id}")
+    best = torch.load(best_file, weights_only=True)
+    progress = json.loads(progress_file.read_text())
+    config = get_algorithm(EXPERT_ALGO).make_config({})
+    metadata = {
+        "env_id": env_id, "algo": EXPERT_ALGO, "seed": progress["seed"],
+        "hidden_sizes": list(config.hidden_sizes),
+        "hyperparameters": {k: (list(v) if isinstance(v, tuple) else v)
+                            for k, v in dataclasses.asdict(config).items()},
+        "budget_steps": progress["total_steps"], "steps_trained": progress["steps_done"],
+        "best_step": int(best["step"]), "best_eval_return": float(best["mean_return"]),
+        "wall_time_s": round(progress["wall_time_s_before_this_sitting"]
+                             + progress["wall_time_s_this_sitting"], 1),
+        "curve": progress["curve"],
+        "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}",
+        "git_revision": provenance.git_revision(),
+    }
+    out = expert_path(env_id)
+    save_checkpoint(out, {"policy": best["policy"], "metadata": metadata})
+    return out
+
+
+class ExpertPolicy:
+    """A committed expert: the deterministic action of its SAC policy."""
+
+    def __init__(self, env_id: str, path: Path | None = None):
+        path = Path(path) if path else expert_path(env_id)
+        if not path.is_file():
+            raise HarnessError(f"no expert for {env_id} at {path}",
+                               f"train one: python -m replicate expert --env "
+                               f"{EXPERT_SOURCE.get(env_id, env_id)} --steps 1000000")
+        saved = torch.load(path, weights_only=True)
+        self.metadata: dict[str, Any] = saved["metadata"]
+        env = make_env(env_id)
+        space = env.action_space
+        self.policy = TanhGaussianPolicy(env.observation_space.shape[0], space.shape[0],
+                                         space.low, space.high,
+                                         tuple(self.metadata["hidden_sizes"]))
+        env.close()
+        self.policy.load_state_dict(saved["policy"])
+        self.policy.eval()
+
+    @torch.no_grad()
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs_t = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
+        return self.policy.deterministic(obs_t).squeeze(0).numpy()

@@ -1,0 +1,58 @@
+"""Kill a run after a checkpoint, start it again: it must finish on the uninterrupted curve."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from baselines.common.context import EvalPoint, TrainContext
+from baselines.registry import get_algorithm
+from replicate.demos import default_demo_path, load_demos
+from tests.helpers import MOUNTAINCAR, TINY, curve_signature
+
+
+class Killed(Exception):
+    pass
+
+
+def run(algo, env_id, steps, checkpoint_path=None, kill_at=None, **overrides):
+    algorithm = get_algorithm(algo)
+    known = {f.name for f in dataclasses.fields(algorithm.config_cls)}
+    config = algorithm.make_config({**{k: v for k, v in TINY.items() if k in known}, **overrides})
+    demos = load_demos(default_demo_path(env_id), env_id) if algorithm.needs_demos else None
+    points: list[EvalPoint] = []
+    done = 0
+    first_report: list[int] = []
+
+    def on_steps(n: int) -> None:
+        nonlocal done
+        done += n
+        first_report[:] = first_report or [n]
+        if kill_at is not None and done >= kill_at:
+            raise Killed
+
+    ctx = TrainContext(env_id=env_id, seed=7, total_steps=steps, eval_interval=150,
+                       eval_episodes=1, demos=demos, on_eval=points.append, on_steps=on_steps,
+                       checkpoint_path=checkpoint_path, checkpoint_interval=1)
+    buffer = algorithm.train(ctx, config)
+    return points, buffer, first_report[0]
+
+
+@pytest.mark.parametrize("algo, env_id, overrides", [
+    ("sac", "Hopper-v5", {}),  # short episodes: several checkpoints before the kill
+    ("drl-eg", MOUNTAINCAR, {"guide_threshold": 0.5}),
+])
+def test_killed_run_resumes_onto_the_uninterrupted_curve(tmp_path, algo, env_id, overrides):
+    steps = 600
+    reference, reference_buffer, _ = run(algo, env_id, steps, **overrides)
+    checkpoint = tmp_path / "checkpoint.pt"
+    with pytest.raises(Killed):
+        run(algo, env_id, steps, checkpoint_path=checkpoint, kill_at=450, **overrides)
+    assert checkpoint.is_file()
+    resumed, resumed_buffer, resumed_from = run(algo, env_id, steps, checkpoint_path=checkpoint,
+                                                **overrides)
+    assert 150 < resumed_from < 450  # it did resume from a checkpoint, after some evaluations
+    assert curve_signature(resumed) == curve_signature(reference)
+    n = len(reference_buffer)
+    assert np.array_equal(resumed_buffer.observations[:n], reference_buffer.observations[:n])
+    assert np.array_equal(resumed_buffer.actions[:n], reference_buffer.actions[:n])
