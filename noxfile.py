@@ -40,7 +40,6 @@ def replicate_fig3(session: nox.Session) -> None:
 EXPERT_ENVS = ["Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",
                "dm_control/cartpole-swingup-v0", "dm_control/ball_in_cup-catch-v0",
                "dm_control/walker-walk-v0"]
-DEMO_ENVS = ["MountainCarContinuous-v0", *EXPERT_ENVS, "dm_control/cartpole-swingup_sparse-v0"]
 
 
 @nox.session(python=PYTHON)
@@ -56,12 +55,7 @@ def experts(session: nox.Session) -> None:
 
 @nox.session(python=PYTHON)
 def demos(session: nox.Session) -> None:
-    """Regenerate the committed demonstrations from the rule and the committed experts."""
+    """Regenerate the committed demonstrations of every env that has an expert."""
     _install(session)
-    envs = DEMO_ENVS if not session.posargs else []
-    for env_id in envs:
-        session.run("python", "-m", "replicate", "demos", "--env", env_id,
-                    env={"MUJOCO_GL": "disable"})
-    if session.posargs:
-        session.run("python", "-m", "replicate", "demos", *session.posargs,
-                    env={"MUJOCO_GL": "disable"})
+    args = session.posargs or ["--all"]
+    session.run("python", "-m", "replicate", "demos", *args, env={"MUJOCO_GL": "disable"})

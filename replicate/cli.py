@@ -66,7 +66,11 @@ def _build_parser() -> argparse.ArgumentParser:
         "demos", help="make a demonstration file from the harness's own expert",
         description="Roll out the expert of an env and save (s, a) pairs with provenance.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    demos.add_argument("--env", required=True, help="environment id")
+    which = demos.add_mutually_exclusive_group(required=True)
+    which.add_argument("--env", help="environment id")
+    which.add_argument("--all", action="store_true",
+                       help="every env with an expert (the rule or a committed SAC expert); "
+                            "lists the envs skipped for want of one")
     demos.add_argument("--pairs", type=int, default=1000, help="number of (s, a) pairs")
     demos.add_argument("--seed", type=int, default=0, help="seed of the expert rollouts")
     demos.add_argument("--out", type=Path, default=None,
@@ -138,12 +142,28 @@ def _cmd_train(args: argparse.Namespace) -> int:
 def _cmd_demos(args: argparse.Namespace) -> int:
     from replicate.demos import default_demo_path, make_demos, save_demos
 
-    demos = make_demos(args.env, n_pairs=args.pairs, seed=args.seed)
-    path = save_demos(args.out or default_demo_path(args.env), demos)
-    meta = demos.metadata
-    print(f"wrote {path}: {meta['n_pairs']} pairs, expert return "
-          f"{meta['expert_return_mean']:.2f} +- {meta['expert_return_std']:.2f} over "
-          f"{meta['expert_episodes']} episodes, sha256 {meta['content_sha256'][:12]}")
+    from envs import ENV_SPECS
+    from replicate.demos import RULE_EXPERTS
+    from replicate.errors import HarnessError
+    from replicate.experts import expert_path
+
+    if args.all and args.out:
+        raise HarnessError("--out names one file; it cannot go with --all",
+                           "drop --out (each env gets its committed path) or pass --env")
+    if args.all:
+        env_ids = [e for e in ENV_SPECS if e in RULE_EXPERTS or expert_path(e).is_file()]
+        skipped = [e for e in ENV_SPECS if e not in env_ids]
+        if skipped:
+            print(f"no expert yet (train with `nox -s experts`), skipped: {', '.join(skipped)}")
+    else:
+        env_ids = [args.env]
+    for env_id in env_ids:
+        demos = make_demos(env_id, n_pairs=args.pairs, seed=args.seed)
+        path = save_demos(args.out or default_demo_path(env_id), demos)
+        meta = demos.metadata
+        print(f"wrote {path}: {meta['n_pairs']} pairs, expert return "
+              f"{meta['expert_return_mean']:.2f} +- {meta['expert_return_std']:.2f} over "
+              f"{meta['expert_episodes']} episodes, sha256 {meta['content_sha256'][:12]}")
     return 0
 
 
