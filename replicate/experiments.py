@@ -7,6 +7,7 @@ budgets and is meant for a cluster or a GPU machine.
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import os
 import queue
@@ -48,16 +49,23 @@ PROFILES: dict[str, Profile] = {
     "smoke": Profile(
         "smoke", steps={"MountainCarContinuous-v0": 1200},
         eval_interval={"MountainCarContinuous-v0": 400}, eval_episodes=1, seeds=2,
-        overrides={"hidden_sizes": (32, 32), "batch_size": 32, "learning_starts": 400},
+        overrides={"hidden_sizes": (32, 32), "batch_size": 32, "learning_starts": 400,
+                   "rollout_steps": 400, "bc_steps": 200},
         meaningful=False,
         summary="seconds per run, tiny networks"),
     "quick": Profile(
-        "quick", steps={"MountainCarContinuous-v0": 20_000},
+        "quick", steps={"MountainCarContinuous-v0": 15_000},
         eval_interval={"MountainCarContinuous-v0": 1000}, eval_episodes=5, seeds=4,
-        summary="reduced budget and seeds with the paper's networks and hyperparameters"),
+        summary="reduced budget and seeds with the paper's networks and hyperparameters; "
+                "MountainCar only until the MuJoCo experts exist"),
     "paper": Profile(
-        "paper", steps={"MountainCarContinuous-v0": 100_000},
-        eval_interval={"MountainCarContinuous-v0": 2000}, eval_episodes=10, seeds=5,
+        "paper", steps={"MountainCarContinuous-v0": 100_000, **{
+            env_id: 1_000_000 for env_id in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5",
+                                             "Ant-v5")}},
+        eval_interval={"MountainCarContinuous-v0": 2000, **{
+            env_id: 10_000 for env_id in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5",
+                                          "Ant-v5")}},
+        eval_episodes=10, seeds=5,
         summary="full budgets and >= 5 seeds; meant for a cluster or a GPU machine"),
 }
 
@@ -66,8 +74,7 @@ DRL_EG_ENV_DEFAULTS: dict[str, dict[str, float]] = {
     "MountainCarContinuous-v0": {"guide_threshold": 0.05, "guide_noise_std": 0.1},
 }
 
-FIG3_ALGORITHMS = ("sac", "drl-eg")
-FIG3_ENVS = ("MountainCarContinuous-v0",)
+FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
 
 
 def get_profile(name: str) -> Profile:
@@ -77,15 +84,32 @@ def get_profile(name: str) -> Profile:
     return PROFILES[name]
 
 
-def figure3_specs(profile: Profile, seeds: int | None = None) -> list[RunSpec]:
-    """The Fig. 3 grid: every algorithm x env x seed of the profile."""
+def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The profile's overrides that ``algo``'s config has (each takes what it knows)."""
+    from baselines.registry import get_algorithm
+
+    known = {f.name for f in dataclasses.fields(get_algorithm(algo).config_cls)}
+    return {k: v for k, v in overrides.items() if k in known}
+
+
+def figure3_grid(profile: Profile, seeds: int | None = None
+                 ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+    """The Fig. 3 grid: every algorithm x env x seed of the profile, and the (env, algo,
+    reason) cells left out because their demonstrations do not exist yet."""
+    from baselines.registry import get_algorithm
+    from replicate.demos import default_demo_path
+
     n_seeds = profile.seeds if seeds is None else seeds
     if n_seeds <= 0:
         raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 3")
-    specs = []
-    for env_id in FIG3_ENVS:
+    specs, skipped = [], []
+    for env_id in profile.steps:
         for algo in FIG3_ALGORITHMS:
-            hyper = dict(profile.overrides)
+            if get_algorithm(algo).needs_demos and not default_demo_path(env_id).is_file():
+                skipped.append((env_id, algo, "no committed demonstrations for this env yet "
+                                "(`nox -s experts`, then `nox -s demos`)"))
+                continue
+            hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
                 hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
             for seed in range(n_seeds):
@@ -94,7 +118,7 @@ def figure3_specs(profile: Profile, seeds: int | None = None) -> list[RunSpec]:
                                      eval_interval=profile.eval_interval[env_id],
                                      eval_episodes=profile.eval_episodes,
                                      hyperparameters=hyper))
-    return specs
+    return specs, skipped
 
 
 @dataclass
@@ -102,6 +126,7 @@ class GridOutcome:
     runs: list[Run]
     failed: list[tuple[str, str]]  # (run id, reason)
     wall_time_s: float
+    skipped: list[tuple[str, str, str]] = field(default_factory=list)  # (env, algo, reason)
 
 
 def _worker(prepared: PreparedRun, store: str, progress: Any) -> str:
@@ -150,7 +175,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None) -> G
     if missing:
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
         with ctx.Manager() as manager, tqdm(total=total_steps, unit="step", dynamic_ncols=True,
-                                            mininterval=1.0, desc="fig runs") as bar:
+                                            mininterval=1.0, desc="training") as bar:
             progress = manager.Queue()
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 futures: dict[Future, PreparedRun] = {
@@ -184,8 +209,11 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
-    specs = figure3_specs(chosen, seeds)
+    specs, skipped = figure3_grid(chosen, seeds)
+    for env_id, algo, reason in skipped:
+        print(f"skipped {algo} on {env_id}: {reason}")
     outcome = run_grid(specs, store, workers)
+    outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
         raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "

@@ -4,6 +4,7 @@ import json
 import re
 
 from replicate.cli import main
+from replicate.experiments import FIG3_ALGORITHMS
 
 
 def test_smoke_profile_produces_a_self_contained_report(tmp_path, capsys):
@@ -19,14 +20,17 @@ def test_smoke_profile_produces_a_self_contained_report(tmp_path, capsys):
     assert "http://" not in html and "https://" not in html  # nothing fetched at view time
     assert "not judged (smoke profile" in html
     summary = json.loads((out / "summary.json").read_text())
-    assert {f["algo"] for f in summary["final_returns"]} == {"sac", "drl-eg"}
-    assert len(summary["runs"]) == 4 and not summary["failed"]
+    assert {f["algo"] for f in summary["final_returns"]} == set(FIG3_ALGORITHMS)
+    assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) and not summary["failed"]
+    checks = " ".join(part["what"] for part in summary["claim"]["parts"])
+    for label in ("DRL-EG", "SAC", "PPO", "PPO+BC", "DDPGfD"):
+        assert label in checks
     assert all(len(f["finals"]) == 2 for f in summary["final_returns"])
 
     # a second invocation trains nothing and rebuilds the same numbers from the store
     capsys.readouterr()
     assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
-    assert "4 already in" in capsys.readouterr().out
+    assert f"{2 * len(FIG3_ALGORITHMS)} already in" in capsys.readouterr().out
     again = json.loads((out / "summary.json").read_text())
     assert again["final_returns"] == summary["final_returns"]
     assert again["claim"] == summary["claim"]
