@@ -54,7 +54,7 @@ PROFILES: dict[str, Profile] = {
         meaningful=False,
         summary="seconds per run, tiny networks"),
     "quick": Profile(
-        "quick", steps={"MountainCarContinuous-v0": 15_000},
+        "quick", steps={"MountainCarContinuous-v0": 20_000},
         eval_interval={"MountainCarContinuous-v0": 1000}, eval_episodes=5, seeds=4,
         summary="reduced budget and seeds with the paper's networks and hyperparameters; "
                 "MountainCar only until the MuJoCo experts exist"),
