@@ -76,3 +76,100 @@ def welch_test(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
         return float("nan"), float("nan")
     result = stats.ttest_ind(a, b, equal_var=False)
     return float(result.statistic), float(result.pvalue)
+
+
+def _as_matrix(scores: np.ndarray) -> np.ndarray:
+    """(runs, tasks); a vector is one task."""
+    scores = np.asarray(scores, dtype=float)
+    return scores.reshape(len(scores), -1)
+
+
+# Aggregate metrics over a (runs, tasks) score matrix (Agarwal et al. 2021). Scores of
+# different tasks must be normalised to a common scale before they are aggregated.
+
+def mean_score(scores: np.ndarray) -> float:
+    """Mean over tasks of the per-task mean over runs."""
+    return float(np.mean(np.mean(scores, axis=0)))
+
+
+def median_score(scores: np.ndarray) -> float:
+    """Median over tasks of the per-task mean over runs."""
+    return float(np.median(np.mean(scores, axis=0)))
+
+
+def interquartile_mean(scores: np.ndarray) -> float:
+    """IQM: the mean of the middle 50% of all run-task scores pooled together."""
+    return float(stats.trim_mean(np.asarray(scores, dtype=float), 0.25, axis=None))
+
+
+def optimality_gap(scores: np.ndarray, gamma: float = 1.0) -> float:
+    """How far scores fall short of ``gamma`` on average (scores above it count as gamma)."""
+    return float(gamma - np.mean(np.minimum(scores, gamma)))
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """P(X > Y) + P(X = Y) / 2 for a random run of each, per task, averaged over tasks
+    (the Mann-Whitney U statistic over n_x * n_y)."""
+    x, y = _as_matrix(x), _as_matrix(y)
+    per_task = []
+    for task in range(x.shape[1]):
+        greater = (x[:, task, None] > y[None, :, task]).mean()
+        ties = (x[:, task, None] == y[None, :, task]).mean()
+        per_task.append(greater + 0.5 * ties)
+    return float(np.mean(per_task))
+
+
+def score_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Performance profile: for each tau, the fraction of runs scoring above tau, averaged
+    over tasks."""
+    scores = np.asarray(scores, dtype=float)
+    above = scores[None, :, :] > np.asarray(taus, dtype=float)[:, None, None]
+    return above.mean(axis=1).mean(axis=1)
+
+
+def _resample_runs(scores: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One stratified bootstrap sample: runs redrawn with replacement within each task."""
+    n_runs, n_tasks = scores.shape
+    rows = rng.integers(0, n_runs, size=(n_runs, n_tasks))
+    return np.take_along_axis(scores, rows, axis=0)
+
+
+def stratified_bootstrap_ci(statistic, samples: tuple[np.ndarray, ...],
+                            rng: np.random.Generator, confidence: float = CONFIDENCE,
+                            n_resamples: int = N_BOOTSTRAP) -> Estimate:
+    """Percentile CI of ``statistic(*samples)``; each (runs, tasks) sample is resampled
+    within each task and independently of the others. The statistic may return an array."""
+    samples = tuple(_as_matrix(s) for s in samples)
+    value = np.asarray(statistic(*samples), dtype=float)
+    draws = np.stack([np.asarray(statistic(*(_resample_runs(s, rng) for s in samples)),
+                                 dtype=float) for _ in range(n_resamples)])
+    tail = 100 * (1 - confidence) / 2
+    low, high = np.percentile(draws, [tail, 100 - tail], axis=0)
+    return Estimate(value, np.minimum(low, value), np.maximum(high, value))
+
+
+def paired_difference(x: np.ndarray, y: np.ndarray, rng: np.random.Generator,
+                      confidence: float = CONFIDENCE, n_resamples: int = N_BOOTSTRAP
+                      ) -> tuple[Estimate, float]:
+    """Mean of x_i - y_i over pairs that share a seed (Fig. 4), with a bootstrap CI over
+    pairs, and the two-sided p-value of the Wilcoxon signed-rank test (NaN when undefined)."""
+    diffs = np.asarray(x, dtype=float) - np.asarray(y, dtype=float)
+    estimate = bootstrap_mean(diffs, rng, confidence, n_resamples)
+    estimate = Estimate(estimate.value[0], estimate.low[0], estimate.high[0])
+    if len(diffs) < 2 or np.all(diffs == 0):
+        return estimate, float("nan")
+    return estimate, float(stats.wilcoxon(diffs).pvalue)
+
+
+def hedges_g(a: np.ndarray, b: np.ndarray) -> float:
+    """Standardised mean difference (a - b) / pooled sd with the small-sample correction;
+    NaN when it is undefined (fewer than 2 runs each, or no spread at all)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    n_a, n_b = len(a), len(b)
+    if n_a < 2 or n_b < 2:
+        return float("nan")
+    pooled = np.sqrt(((n_a - 1) * a.var(ddof=1) + (n_b - 1) * b.var(ddof=1)) / (n_a + n_b - 2))
+    if pooled == 0:
+        return float("nan")
+    correction = 1 - 3 / (4 * (n_a + n_b) - 9)
+    return float(correction * (a.mean() - b.mean()) / pooled)

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from replicate.stats import bootstrap_mean, bootstrap_mean_difference, welch_test
 
@@ -34,3 +35,29 @@ def test_mean_difference_and_welch():
     t, p = welch_test(a, b)
     assert t > 0 and p < 0.01
     assert np.isnan(welch_test(np.zeros(3), np.zeros(3))[1])
+
+
+def test_paired_difference_and_wilcoxon():
+    from replicate.stats import paired_difference
+    x = np.array([5.0, 6.0, 7.0, 8.0, 9.0, 10.0])
+    estimate, p_value = paired_difference(x, x - 1.0, np.random.default_rng(0))
+    assert estimate.value == 1.0 and estimate.low == 1.0 and estimate.high == 1.0
+    assert p_value < 0.05
+    _, undefined = paired_difference(x, x, np.random.default_rng(0))
+    assert np.isnan(undefined)
+
+
+def test_hedges_g_hand_computed():
+    from replicate.stats import hedges_g
+    a, b = np.array([1.0, 2.0, 3.0]), np.array([3.0, 4.0, 5.0])
+    # pooled sd 1, raw difference -2, correction 1 - 3 / (4 * 6 - 9) = 0.8
+    assert hedges_g(a, b) == pytest.approx(-1.6)
+    assert np.isnan(hedges_g(a[:1], b))
+
+
+def test_iqm_and_profile_hand_computed():
+    from replicate.stats import interquartile_mean, optimality_gap, score_profile
+    scores = np.array([[0.0], [1.0], [2.0], [3.0], [4.0], [5.0], [6.0], [100.0]])
+    assert interquartile_mean(scores) == pytest.approx(3.5)  # mean of 2, 3, 4, 5
+    assert score_profile(scores, np.array([2.5, 50.0])).tolist() == [5 / 8, 1 / 8]
+    assert optimality_gap(np.array([[0.5], [1.5]])) == pytest.approx(0.25)
