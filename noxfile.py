@@ -35,6 +35,14 @@ def replicate_fig3(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(python=PYTHON)
+def report(session: nox.Session) -> None:
+    """Rebuild reports/fig3 from the run store alone (nothing is trained)."""
+    _install(session)
+    session.run("python", "-m", "replicate", "report", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 # Experts of the paper's MuJoCo envs and of the dm-control tasks (the sparse cartpole uses
 # the dense one's). Kept here as data so the session reads without importing the package.
 EXPERT_ENVS = ["Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,report,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -113,6 +113,19 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="report directory (default: reports/fig3, or reports/smoke/fig3 "
                            "for the smoke profile)")
 
+    report = sub.add_parser(
+        "report", help="rebuild reports from the run store without training",
+        description="Rebuild the Fig. 3 report of a profile from the runs already in the "
+                    "store; nothing is trained, and missing runs are listed in the report.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    report.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+                        help="which profile's grid to report")
+    report.add_argument("--seeds", type=int, default=None,
+                        help="number of seeds (default: the profile's)")
+    report.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    report.add_argument("--out", type=Path, default=None,
+                        help="report directory (default: as for fig3)")
+
     sub.add_parser("algos", help="list algorithms and their default hyperparameters")
     sub.add_parser("envs", help="list environments and their spec table")
     return parser
@@ -192,10 +205,22 @@ def _cmd_expert(args: argparse.Namespace) -> int:
 def _cmd_fig3(args: argparse.Namespace) -> int:
     from replicate.experiments import run_figure3
 
-    out = args.out or (Path("reports/smoke/fig3") if args.profile == "smoke"
-                       else Path("reports/fig3"))
+    out = args.out or _default_out(args.profile)
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
                          workers=args.workers)
+    print(f"report: {report}")
+    return 0
+
+
+def _default_out(profile: str) -> Path:
+    return Path("reports/smoke/fig3") if profile == "smoke" else Path("reports/fig3")
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from replicate.experiments import rebuild_figure3
+
+    report = rebuild_figure3(profile=args.profile, seeds=args.seeds, store=args.store,
+                             out_dir=args.out or _default_out(args.profile))
     print(f"report: {report}")
     return 0
 
@@ -224,6 +249,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3,
+            "report": _cmd_report,
             "algos": _cmd_algos, "envs": _cmd_envs}
 
 

@@ -125,7 +125,7 @@ def figure3_grid(profile: Profile, seeds: int | None = None
 class GridOutcome:
     runs: list[Run]
     failed: list[tuple[str, str]]  # (run id, reason)
-    wall_time_s: float
+    wall_time_s: float | None  # None: rebuilt from the store, nothing trained
     skipped: list[tuple[str, str, str]] = field(default_factory=list)  # (env, algo, reason)
 
 
@@ -219,3 +219,24 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
         raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "
                            "lists them", "read the reasons there, fix, and run the same command")
     return report
+
+
+def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
+                    store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")) -> Path:
+    """Write the Fig. 3 report from the runs already in the store; train nothing. Cells of
+    the grid whose runs are missing are listed in the report."""
+    from replicate.report import write_figure3_report
+
+    chosen = get_profile(profile)
+    specs, skipped = figure3_grid(chosen, seeds)
+    runs = []
+    for spec in specs:
+        directory = prepare(spec).directory(store)
+        if is_complete(directory):
+            runs.append(load_run(directory))
+        else:
+            skipped.append((spec.env_id, spec.algo,
+                            f"seed {spec.seed} not in {store} yet (run `nox -s replicate-fig3 "
+                            f"-- --profile {profile}` to train it)"))
+    outcome = GridOutcome(runs, [], None, skipped)
+    return write_figure3_report(outcome, chosen, out_dir)

@@ -34,3 +34,19 @@ def test_smoke_profile_produces_a_self_contained_report(tmp_path, capsys):
     again = json.loads((out / "summary.json").read_text())
     assert again["final_returns"] == summary["final_returns"]
     assert again["claim"] == summary["claim"]
+
+    # the report command rebuilds the same numbers from the store alone
+    assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
+    rebuilt = json.loads((out / "summary.json").read_text())
+    assert rebuilt["final_returns"] == summary["final_returns"]
+    assert "rebuilt from the run store without training" in (out / "index.html").read_text()
+
+
+def test_report_from_an_empty_store_lists_every_missing_run(tmp_path):
+    out = tmp_path / "report"
+    assert main(["report", "--profile", "smoke", "--store", str(tmp_path / "none"),
+                 "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert not summary["runs"] and summary["claim"] is None
+    assert len(summary["skipped"]) == 2 * len(FIG3_ALGORITHMS)
+    assert "No claim could be judged" in (out / "index.html").read_text()
