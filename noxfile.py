@@ -35,6 +35,14 @@ def replicate_fig3(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(name="replicate-table1", python=PYTHON)
+def replicate_table1(session: nox.Session) -> None:
+    """Write reports/table1/index.html: env dims (paper beside harness) and demonstrations."""
+    _install(session)
+    session.run("python", "-m", "replicate", "table1", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 @nox.session(python=PYTHON)
 def report(session: nox.Session) -> None:
     """Rebuild reports/fig3 from the run store alone (nothing is trained)."""

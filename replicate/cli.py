@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,report,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,report,table1,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -126,6 +126,14 @@ def _build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", type=Path, default=None,
                         help="report directory (default: as for fig3)")
 
+    table1 = sub.add_parser(
+        "table1", help="write Table 1 (env dims, paper beside harness, demonstrations)",
+        description="Write reports/table1/index.html from the environment table, checked "
+                    "against the live envs, and the committed demonstration files.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    table1.add_argument("--out", type=Path, default=Path("reports/table1"),
+                        help="report directory")
+
     sub.add_parser("algos", help="list algorithms and their default hyperparameters")
     sub.add_parser("envs", help="list environments and their spec table")
     return parser
@@ -225,6 +233,13 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_table1(args: argparse.Namespace) -> int:
+    from replicate.table1 import write_table1_report
+
+    print(f"report: {write_table1_report(args.out)}")
+    return 0
+
+
 def _cmd_algos(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -249,7 +264,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3,
-            "report": _cmd_report,
+            "report": _cmd_report, "table1": _cmd_table1,
             "algos": _cmd_algos, "envs": _cmd_envs}
 
 

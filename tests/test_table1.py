@@ -1,0 +1,16 @@
+import re
+
+from envs import ENV_SPECS
+from replicate.cli import main
+
+
+def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
+    assert main(["table1", "--out", str(tmp_path)]) == 0
+    html = (tmp_path / "index.html").read_text()
+    ant = re.search(r"<code>Ant-v5</code></td><td>Ant-v2</td>\s*<td class=\"num\">(\d+) / (\d+)",
+                    html)
+    assert ant and ant.groups() == ("111", "105")
+    assert "MountainCarContinuous-v0.v1.npz" in html and "96.0 &plusmn; 0.9 (7)" in html
+    demo_section = html[html.index('id="demonstrations"'):]
+    assert demo_section.count("<tr><td><code>") == len(ENV_SPECS)  # every env has a row
+    assert "http://" not in html and "https://" not in html
