@@ -24,6 +24,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
+                                         save_checkpoint)
 from baselines.common.context import DemoSet, EvalPoint, TrainContext
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import QNetwork, mlp, soft_update
@@ -111,6 +113,16 @@ class DDPGfDAgent:
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(),
                                                  lr=config.critic_learning_rate)
 
+    MODULES = ("actor", "critic", "actor_target", "critic_target", "actor_optimizer",
+               "critic_optimizer")
+
+    def state_dict(self) -> dict:
+        return {name: getattr(self, name).state_dict() for name in self.MODULES}
+
+    def load_state_dict(self, state: dict) -> None:
+        for name in self.MODULES:
+            getattr(self, name).load_state_dict(state[name])
+
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
         return self.actor(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
@@ -190,19 +202,37 @@ def train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
     rng = np.random.default_rng(ctx.seed)
     noise_std = config.exploration_noise * (high - low) / 2.0
 
-    def evaluate_and_record(step: int) -> None:
-        returns = evaluate(eval_env, agent.act, ctx.eval_episodes)
-        ctx.on_eval(EvalPoint(step, tuple(returns)))
+    curve: list[EvalPoint] = []
 
-    evaluate_and_record(0)
-    obs, _ = env.reset(seed=ctx.seed)
-    for step in range(1, ctx.total_steps + 1):
+    def evaluate_and_record(step: int) -> None:
+        point = EvalPoint(step, tuple(evaluate(eval_env, agent.act, ctx.eval_episodes)))
+        curve.append(point)
+        ctx.on_eval(point)
+
+    resumed = load_checkpoint(ctx.checkpoint_path)
+    if resumed is None:
+        start = 1
+        evaluate_and_record(0)
+        obs, _ = env.reset(seed=ctx.seed)
+    else:  # taken where an episode had just ended: see baselines.common.checkpoint
+        start = resumed["step"] + 1
+        agent.load_state_dict(resumed["agent"])
+        buffer.load_state_dict(resumed["buffer"])
+        rng = resumed["rng"]
+        restore_env_rng(env, resumed["env_rng"])
+        restore_env_rng(eval_env, resumed["eval_env_rng"])
+        for point in resumed["curve"]:
+            curve.append(point)
+            ctx.on_eval(point)
+        ctx.on_steps(resumed["step"])
+        obs, _ = env.reset()
+    last_checkpoint = start - 1
+
+    for step in range(start, ctx.total_steps + 1):
         action = np.clip(agent.act(obs) + noise_std * rng.standard_normal(act_dim), low, high)
         next_obs, reward, terminated, truncated, _ = env.step(action.astype(np.float32))
         buffer.add(obs, action, reward, next_obs, terminated, truncated)
         obs = next_obs
-        if terminated or truncated:
-            obs, _ = env.reset()
 
         if step >= config.learning_starts:
             beta = config.priority_beta0 + (1.0 - config.priority_beta0) * step / ctx.total_steps
@@ -216,6 +246,15 @@ def train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
         if step % ctx.eval_interval == 0 or step == ctx.total_steps:
             evaluate_and_record(step)
         ctx.on_steps(1)
+        if terminated or truncated:
+            if ctx.checkpoint_path is not None and step < ctx.total_steps \
+                    and due(step, last_checkpoint, ctx.checkpoint_interval):
+                save_checkpoint(ctx.checkpoint_path, {
+                    "step": step, "agent": agent.state_dict(), "buffer": buffer.state_dict(),
+                    "rng": rng, "curve": curve, "env_rng": env_rng_state(env),
+                    "eval_env_rng": env_rng_state(eval_env)})
+                last_checkpoint = step
+            obs, _ = env.reset()
     env.close()
     eval_env.close()
     return buffer

@@ -21,6 +21,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
+                                         save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import mlp
@@ -133,6 +135,17 @@ class PPOAgent(nn.Module):
         log_prob = self.distribution(obs_t).log_prob(action).sum(-1)
         return action.squeeze(0).numpy(), float(log_prob)
 
+    def checkpoint_state(self) -> dict:
+        """Weights, optimiser, observation statistics and the sampling stream."""
+        return {"modules": self.state_dict(), "optimizer": self.optimizer.state_dict(),
+                "obs_stats": dict(self.obs_stats.__dict__), "noise": self.noise.get_state()}
+
+    def load_checkpoint_state(self, state: dict) -> None:
+        self.load_state_dict(state["modules"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.obs_stats.__dict__.update(state["obs_stats"])
+        self.noise.set_state(state["noise"])
+
     @torch.no_grad()
     def act_deterministic(self, obs: np.ndarray) -> np.ndarray:
         mean = self.actor_mean(torch.as_tensor(self.normalize(obs)).unsqueeze(0)).squeeze(0)
@@ -149,7 +162,11 @@ def build_agent(ctx: TrainContext, config: PPOConfig) -> PPOAgent:
 
 
 def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
-    """The PPO training loop (shared with PPO+BC, which pre-trains ``agent`` first)."""
+    """The PPO training loop (shared with PPO+BC, which pre-trains ``agent`` first).
+
+    With ``ctx.checkpoint_path`` set it checkpoints at episode ends, the partly collected
+    rollout included, and resumes from a checkpoint it finds there.
+    """
     cfg = agent.config
     torch.set_num_threads(cfg.torch_threads)
     env = make_env(ctx.env_id, seed=ctx.seed)
@@ -157,41 +174,72 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
     reward_scaler = ReturnScaler(cfg.gamma, cfg.clip_normalized)
     batch_rng = np.random.default_rng(ctx.seed)
     n_rollouts = math.ceil(ctx.total_steps / cfg.rollout_steps)
+    curve: list[EvalPoint] = []
+    names = ("obs", "next_obs", "actions", "log_probs", "rewards", "terminated", "over")
 
     def evaluate_and_record(step: int) -> None:
-        ctx.on_eval(EvalPoint(step, tuple(evaluate(eval_env, agent.act_deterministic,
-                                                   ctx.eval_episodes))))
+        point = EvalPoint(step, tuple(evaluate(eval_env, agent.act_deterministic,
+                                               ctx.eval_episodes)))
+        curve.append(point)
+        ctx.on_eval(point)
 
-    evaluate_and_record(0)
-    raw_obs, _ = env.reset(seed=ctx.seed)
-    step = 0
-    for rollout in range(n_rollouts):
+    resumed = load_checkpoint(ctx.checkpoint_path)
+    if resumed is None:
+        evaluate_and_record(0)
+        raw_obs, _ = env.reset(seed=ctx.seed)
+        step, first_rollout, collected = 0, 0, {name: [] for name in names}
+    else:  # taken where an episode had just ended: see baselines.common.checkpoint
+        agent.load_checkpoint_state(resumed["agent"])
+        reward_scaler.stats.__dict__.update(resumed["reward_stats"])
+        reward_scaler.discounted = resumed["reward_discounted"]
+        batch_rng = resumed["batch_rng"]
+        restore_env_rng(env, resumed["env_rng"])
+        restore_env_rng(eval_env, resumed["eval_env_rng"])
+        for point in resumed["curve"]:
+            curve.append(point)
+            ctx.on_eval(point)
+        step, first_rollout, collected = resumed["step"], resumed["rollout"], resumed["collected"]
+        ctx.on_steps(step)
+        raw_obs, _ = env.reset()
+    last_checkpoint = step
+
+    for rollout in range(first_rollout, n_rollouts):
         if cfg.anneal_learning_rate:
             for group in agent.optimizer.param_groups:
                 group["lr"] = cfg.learning_rate * (1.0 - rollout / n_rollouts)
-        horizon = min(cfg.rollout_steps, ctx.total_steps - step)
-        obs_buf, next_obs_buf, act_buf, logp_buf, rew_buf, term_buf, over_buf = (
-            [], [], [], [], [], [], [])
-        for _ in range(horizon):
+        horizon = min(cfg.rollout_steps, ctx.total_steps - rollout * cfg.rollout_steps)
+        while len(collected["obs"]) < horizon:
             norm_obs = agent.normalize(raw_obs, update=True)
             action, log_prob = agent.sample(norm_obs)
             clipped = np.clip(action, agent.action_low, agent.action_high)
             raw_next, reward, terminated, truncated, _ = env.step(clipped)
             episode_over = terminated or truncated
-            obs_buf.append(norm_obs)
-            next_obs_buf.append(agent.normalize(raw_next))
-            act_buf.append(action)
-            logp_buf.append(log_prob)
-            rew_buf.append(reward_scaler(reward, episode_over) if cfg.normalize_rewards
-                           else reward)
-            term_buf.append(float(terminated))
-            over_buf.append(float(episode_over))
-            raw_obs = env.reset()[0] if episode_over else raw_next
+            for name, value in zip(names, (
+                    norm_obs, agent.normalize(raw_next), action, log_prob,
+                    reward_scaler(reward, episode_over) if cfg.normalize_rewards else reward,
+                    float(terminated), float(episode_over)), strict=True):
+                collected[name].append(value)
+            raw_obs = raw_next
             step += 1
             if step % ctx.eval_interval == 0 or step == ctx.total_steps:
                 evaluate_and_record(step)
             ctx.on_steps(1)
+            if episode_over:
+                if ctx.checkpoint_path is not None and step < ctx.total_steps \
+                        and due(step, last_checkpoint, ctx.checkpoint_interval):
+                    save_checkpoint(ctx.checkpoint_path, {
+                        "step": step, "rollout": rollout, "collected": collected,
+                        "agent": agent.checkpoint_state(),
+                        "reward_stats": dict(reward_scaler.stats.__dict__),
+                        "reward_discounted": reward_scaler.discounted,
+                        "batch_rng": batch_rng, "curve": curve, "env_rng": env_rng_state(env),
+                        "eval_env_rng": env_rng_state(eval_env)})
+                    last_checkpoint = step
+                raw_obs, _ = env.reset()
 
+        obs_buf, next_obs_buf, act_buf, logp_buf, rew_buf, term_buf, over_buf = (
+            collected[name] for name in names)
+        collected = {name: [] for name in names}
         obs_t = torch.as_tensor(np.array(obs_buf))
         act_t = torch.as_tensor(np.array(act_buf))
         old_logp_t = torch.as_tensor(np.array(logp_buf, dtype=np.float32))

@@ -118,6 +118,26 @@ class PrioritizedReplayBuffer:
         self.position = self.n_demo + (i + 1 - self.n_demo) % agent_slots
         self.size = min(self.size + 1, self.capacity)
 
+    ARRAYS = ("observations", "actions", "rewards", "next_observations", "terminated",
+              "episode_end")
+
+    def state_dict(self) -> dict:
+        n = self.size
+        state = {name: getattr(self, name)[:n].copy() for name in self.ARRAYS}
+        state.update(tree=self.tree.nodes.copy(), max_priority=self.max_priority,
+                     n_demo=self.n_demo, position=self.position)
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        n = len(state["rewards"])
+        if n > self.capacity or len(state["tree"]) != len(self.tree.nodes):
+            raise ValueError("saved prioritized buffer does not fit this buffer's capacity")
+        for name in self.ARRAYS:
+            getattr(self, name)[:n] = state[name]
+        self.tree.nodes[:] = state["tree"]
+        self.max_priority, self.n_demo = state["max_priority"], state["n_demo"]
+        self.position, self.size = state["position"], n
+
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
         """Set raw priorities p_i (already including the epsilons); stored as p_i^alpha."""
         self.max_priority = max(self.max_priority, float(np.max(priorities)))
