@@ -224,6 +224,7 @@ def train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
         for point in resumed["curve"]:
             curve.append(point)
             ctx.on_eval(point)
+        ctx.on_resume(resumed["step"])
         ctx.on_steps(resumed["step"])
         obs, _ = env.reset()
     last_checkpoint = start - 1

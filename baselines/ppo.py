@@ -199,6 +199,7 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
             curve.append(point)
             ctx.on_eval(point)
         step, first_rollout, collected = resumed["step"], resumed["rollout"], resumed["collected"]
+        ctx.on_resume(step)
         ctx.on_steps(step)
         raw_obs, _ = env.reset()
     last_checkpoint = step

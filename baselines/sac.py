@@ -237,6 +237,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         for point in resumed["curve"]:
             curve.append(point)
             ctx.on_eval(point)
+        ctx.on_resume(resumed["step"])
         ctx.on_steps(resumed["step"])
         obs, _ = env.reset()  # checkpoints are taken where an episode has just ended
     last_checkpoint = start - 1

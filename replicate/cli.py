@@ -61,6 +61,9 @@ def _build_parser() -> argparse.ArgumentParser:
                             "(repeatable; `python -m replicate algos` shows them)")
     train.add_argument("--store", type=Path, default=DEFAULT_STORE,
                        help="run store directory (also set by $REPLICATE_STORE)")
+    train.add_argument("--checkpoint-interval", type=int, default=10_000,
+                       help="env steps between checkpoints (at the next episode end; 0: "
+                            "none); an interrupted run resumes from its last one")
 
     demos = sub.add_parser(
         "demos", help="make a demonstration file from the harness's own expert",
@@ -109,6 +112,9 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
     fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig3.add_argument("--checkpoint-interval", type=int, default=10_000,
+                      help="env steps between checkpoints of each run (0: none); an "
+                           "interrupted figure resumes its unfinished runs from them")
     fig3.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig3, or reports/smoke/fig3 "
                            "for the smoke profile)")
@@ -152,7 +158,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     prepared = prepare(spec)
     with tqdm(total=spec.total_steps, unit="step", desc=prepared.run_id[:48],
               dynamic_ncols=True) as bar:
-        run = execute(prepared, args.store, on_steps=bar.update)
+        run = execute(prepared, args.store, on_steps=bar.update,
+                      checkpoint_interval=args.checkpoint_interval)
     prov = run.provenance
     print(f"run: {run.path}")
     print(f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
@@ -215,7 +222,7 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
 
     out = args.out or _default_out(args.profile)
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
-                         workers=args.workers)
+                         workers=args.workers, checkpoint_interval=args.checkpoint_interval)
     print(f"report: {report}")
     return 0
 

@@ -20,7 +20,8 @@ from typing import Any
 from tqdm import tqdm
 
 from replicate.errors import HarnessError
-from replicate.runner import PreparedRun, Run, execute, is_complete, load_run, prepare
+from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, execute,
+                              is_complete, load_run, prepare)
 from replicate.spec import RunSpec
 
 
@@ -129,7 +130,7 @@ class GridOutcome:
     skipped: list[tuple[str, str, str]] = field(default_factory=list)  # (env, algo, reason)
 
 
-def _worker(prepared: PreparedRun, store: str, progress: Any) -> str:
+def _worker(prepared: PreparedRun, store: str, progress: Any, checkpoint_interval: int) -> str:
     """Train one run in a worker process, posting step counts to ``progress``."""
     pending = 0
 
@@ -140,7 +141,7 @@ def _worker(prepared: PreparedRun, store: str, progress: Any) -> str:
             progress.put(pending)
             pending = 0
 
-    execute(prepared, Path(store), on_steps=on_steps)
+    execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval)
     progress.put(pending)
     return prepared.run_id
 
@@ -157,7 +158,8 @@ def _estimate_rate(store: Path) -> float:
     return sum(rates) / len(rates) if rates else 40.0
 
 
-def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None) -> GridOutcome:
+def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
+             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> GridOutcome:
     """Train every spec missing from the store, in parallel processes, with one progress bar."""
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
@@ -179,7 +181,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None) -> G
             progress = manager.Queue()
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), progress): p for p in missing}
+                    pool.submit(_worker, p, str(store), progress, checkpoint_interval): p
+                    for p in missing}
                 pending = set(futures)
                 done_count = 0
                 while pending:
@@ -204,7 +207,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None) -> G
 
 
 def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
-                out_dir: Path = Path("reports/fig3"), workers: int | None = None) -> Path:
+                out_dir: Path = Path("reports/fig3"), workers: int | None = None,
+                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> Path:
     """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
     from replicate.report import write_figure3_report
 
@@ -212,7 +216,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     specs, skipped = figure3_grid(chosen, seeds)
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers)
+    outcome = run_grid(specs, store, workers, checkpoint_interval)
     outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:

@@ -1,9 +1,12 @@
 """Runner and run store: one RunSpec in, one complete run directory out.
 
 A run directory is named by the algorithm, env, seed and a hash of the resolved spec. It is
-built under a temporary name and renamed into place only when training finished, so a
-directory with the final name is always complete, and a crashed or interrupted run leaves
-nothing that looks finished (its temporary directory is removed where possible).
+built under a hidden name (``.partial-<run id>``) and renamed into place only when training
+finished, so a directory with the final name is always complete. While it trains, the run
+checkpoints into its hidden directory; a run that was interrupted (Ctrl-C, kill -9, a lost
+machine) resumes from there when it is started again and finishes on the same curve. A
+run that raised an error is recorded as failed and its hidden directory removed. A lock
+file keeps two processes from training the same run at once.
 
 Files of a run:
     spec.json        the resolved spec: hyperparameters with defaults, demonstration hash
@@ -15,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import fcntl
 import json
 import os
 import shutil
@@ -113,55 +117,106 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
     path.write_text(json.dumps(payload, indent=2, sort_keys=True, default=str) + "\n")
 
 
+DEFAULT_CHECKPOINT_INTERVAL = 10_000  # env steps; taken at the next episode end
+CHECKPOINT_FILE = "checkpoint.pt"
+SITTINGS_FILE = "sittings.json"
+
+
+class RunLockedError(HarnessError):
+    pass
+
+
+def partial_directory(prepared: PreparedRun, store: Path) -> Path:
+    return Path(store) / f".partial-{prepared.run_id}"
+
+
 def execute(prepared: PreparedRun, store: Path,
-            on_steps: Callable[[int], None] = lambda n: None) -> Run:
-    """Train ``prepared`` into the store unless a complete run with its address exists."""
+            on_steps: Callable[[int], None] = lambda n: None,
+            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> Run:
+    """Train ``prepared`` into the store unless a complete run with its address exists;
+    resume it from its checkpoint if an earlier attempt was interrupted."""
     store = Path(store)
     final_dir = prepared.directory(store)
     if is_complete(final_dir):
         return load_run(final_dir)
     store.mkdir(parents=True, exist_ok=True)
-    tmp_dir = store / f".partial-{prepared.run_id}-{os.getpid()}"
-    shutil.rmtree(tmp_dir, ignore_errors=True)
-    tmp_dir.mkdir()
-    try:
-        _train_into(prepared, tmp_dir, on_steps)
-        if final_dir.exists():  # a stale incomplete directory of the same address
-            shutil.rmtree(final_dir)
-        os.replace(tmp_dir, final_dir)
-    finally:
-        shutil.rmtree(tmp_dir, ignore_errors=True)
+    work_dir = partial_directory(prepared, store)
+    lock_path = store / f".lock-{prepared.run_id}"
+    with open(lock_path, "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
+        except BlockingIOError:
+            raise RunLockedError(f"run {prepared.run_id} is being trained by another process",
+                                 "wait for it, or stop that process") from None
+        try:
+            if not is_complete(final_dir):  # another process may have finished it
+                work_dir.mkdir(exist_ok=True)
+                try:
+                    _train_into(prepared, work_dir, on_steps, checkpoint_interval)
+                except Exception:
+                    shutil.rmtree(work_dir, ignore_errors=True)  # an error would recur
+                    raise
+                (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
+                if final_dir.exists():  # a stale incomplete directory of the same address
+                    shutil.rmtree(final_dir)
+                os.replace(work_dir, final_dir)
+        finally:
+            lock_path.unlink(missing_ok=True)
     return load_run(final_dir)
 
 
-def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None]) -> None:
+def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
+                checkpoint_interval: int) -> None:
     spec = prepared.spec
     _write_json(run_dir / "spec.json", prepared.resolved)
     started = time.time()
     started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    sittings_path = run_dir / SITTINGS_FILE
+    earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
+    resumed_from = 0
+
+    def on_resume(step: int) -> None:
+        nonlocal resumed_from
+        resumed_from = step
+
+    def record_sitting() -> None:
+        sittings = earlier + [{"started_utc": started_iso, "resumed_from_step": resumed_from,
+                               "wall_time_s": round(time.time() - started, 3)}]
+        sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
+
+    # the curve is rewritten whole: a resumed algorithm re-emits the points it had
     curve_file = open(run_dir / "curve.csv", "w", newline="")
     writer = csv.writer(curve_file)
     writer.writerow(CURVE_COLUMNS)
+
+    earlier_wall = sum(s["wall_time_s"] for s in earlier)
 
     def on_eval(point: EvalPoint) -> None:
         writer.writerow([point.step, f"{point.mean_return:.6g}", f"{np.std(point.returns):.6g}",
                          ";".join(f"{r:.6g}" for r in point.returns),
                          f"{point.guided_fraction:.6g}",
                          "" if point.gate_open is None else int(point.gate_open),
-                         f"{time.time() - started:.3f}"])
+                         f"{earlier_wall + time.time() - started:.3f}"])
         curve_file.flush()
+        record_sitting()
 
     ctx = TrainContext(env_id=spec.env_id, seed=spec.seed, total_steps=spec.total_steps,
                        eval_interval=spec.eval_interval, eval_episodes=spec.eval_episodes,
-                       demos=prepared.demos, on_eval=on_eval, on_steps=on_steps)
+                       demos=prepared.demos, on_eval=on_eval, on_steps=on_steps,
+                       on_resume=on_resume,
+                       checkpoint_path=run_dir / CHECKPOINT_FILE,
+                       checkpoint_interval=checkpoint_interval)
     try:
         get_algorithm(spec.algo).train(ctx, prepared.config)
     finally:
         curve_file.close()
-    wall = time.time() - started
+    record_sitting()
+    sittings = json.loads(sittings_path.read_text())
+    wall = sum(s["wall_time_s"] for s in sittings)
     _write_json(run_dir / "provenance.json", {
         "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
-        "seed": spec.seed, "started_utc": started_iso, "wall_time_s": round(wall, 3),
+        "seed": spec.seed, "started_utc": sittings[0]["started_utc"],
+        "wall_time_s": round(wall, 3), "sittings": sittings,
         "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
         "git_revision": provenance.git_revision(), "versions": provenance.package_versions(),
         "machine": provenance.machine(),

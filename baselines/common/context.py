@@ -48,6 +48,7 @@ class TrainContext:
     # Resume: where the algorithm keeps its checkpoint, and how many env steps apart (at
     # the first episode end after each interval; 0 = never). An algorithm that finds a
     # checkpoint there resumes from it and re-emits the curve points it already had.
+    on_resume: Callable[[int], None] = field(default=lambda step: None)  # step resumed from
     checkpoint_path: Path | None = None
     checkpoint_interval: int = 0
     # Where to keep the weights of the policy with the best evaluation so far (experts).
