@@ -3,3 +3,16 @@ import warnings
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 warnings.filterwarnings("ignore", message=".*is different from the unwrapped version.*")
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def smoke_fig3(tmp_path_factory):
+    """The smoke profile's Fig. 3, trained once per session: (store, report directory)."""
+    from replicate.cli import main
+
+    root = tmp_path_factory.mktemp("smoke_fig3")
+    store, out = root / "runs", root / "report"
+    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
+    return store, out

@@ -7,10 +7,8 @@ from replicate.cli import main
 from replicate.experiments import FIG3_ALGORITHMS
 
 
-def test_smoke_profile_produces_a_self_contained_report(tmp_path, capsys):
-    store, out = tmp_path / "runs", tmp_path / "report"
-    code = main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out)])
-    assert code == 0
+def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys):
+    store, out = smoke_fig3
     html = (out / "index.html").read_text()
     for section in ("claims", "figure", "final-returns", "budgets", "demonstrations", "runs",
                     "provenance", "smoke-warning"):
