@@ -19,11 +19,10 @@ from replicate import provenance
 from replicate.experiments import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
 from replicate.figures import CurveBand, learning_curves_png
 from replicate.runner import Run
-from replicate.stats import CONFIDENCE, bootstrap_mean, bootstrap_mean_difference, welch_test
+from replicate.claims import Group, judge_claims
+from replicate.stats import CONFIDENCE, bootstrap_mean
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
-MOUNTAINTOP = 90.0  # the paper's MountainCar success level
-NEAR_ZERO = 10.0  # |return| below this counts as "learned nothing" on MountainCar
 
 
 @dataclass
@@ -68,80 +67,14 @@ def summarise(runs: list[Run], rng: np.random.Generator
     return bands, finals
 
 
-def _interval_verdict(low: float, high: float, inside: tuple[float, float]) -> str:
-    """reproduced if the CI lies inside ``inside``, not reproduced if wholly outside it."""
-    lo, hi = inside
-    if np.isnan(low) or np.isnan(high):
-        return "inconclusive"
-    if lo <= low and high <= hi:
-        return "reproduced"
-    if high < lo or low > hi:
-        return "not reproduced"
-    return "inconclusive"
-
-
-def _combine(verdicts: list[str]) -> str:
-    if "not reproduced" in verdicts:
-        return "not reproduced"
-    return "reproduced" if verdicts and set(verdicts) == {"reproduced"} else "inconclusive"
-
-
-def claim_mountaincar(finals: list[FinalReturns], rng: np.random.Generator,
-                      profile: Profile) -> dict[str, Any] | None:
-    """Claim 1: on MountainCarContinuous SAC and PPO end near 0, DRL-EG reaches the goal
-    (final return > 90), PPO+BC and DDPGfD learn (CI above the near-zero band) but end below
-    DRL-EG (CI of the difference above 0). Parts whose runs are missing are left out."""
-    by_algo = {f.algo: f for f in finals if f.env_id == "MountainCarContinuous-v0"}
-    if "drl-eg" not in by_algo:
-        return None
-    drl = by_algo["drl-eg"]
-    parts = [{"what": f"DRL-EG final return, 95% CI above {MOUNTAINTOP:g}",
-              "estimate": drl.mean, "low": drl.low, "high": drl.high,
-              "verdict": _interval_verdict(drl.low, drl.high, (MOUNTAINTOP, np.inf)),
-              "seeds_meeting": int((drl.finals > MOUNTAINTOP).sum()), "n": len(drl.finals)}]
-    for algo, label in (("sac", "SAC"), ("ppo", "PPO")):
-        if algo in by_algo:
-            f = by_algo[algo]
-            parts.append({"what": f"{label} final return, 95% CI within +-{NEAR_ZERO:g}",
-                          "estimate": f.mean, "low": f.low, "high": f.high,
-                          "verdict": _interval_verdict(f.low, f.high, (-NEAR_ZERO, NEAR_ZERO)),
-                          "seeds_meeting": int((np.abs(f.finals) <= NEAR_ZERO).sum()),
-                          "n": len(f.finals)})
-    for algo, label in (("ppo-bc", "PPO+BC"), ("ddpgfd", "DDPGfD")):
-        if algo in by_algo:
-            f = by_algo[algo]
-            parts.append({"what": f"{label} learns: final return, 95% CI above {NEAR_ZERO:g}",
-                          "estimate": f.mean, "low": f.low, "high": f.high,
-                          "verdict": _interval_verdict(f.low, f.high, (NEAR_ZERO, np.inf)),
-                          "seeds_meeting": int((f.finals > NEAR_ZERO).sum()),
-                          "n": len(f.finals)})
-            gap = bootstrap_mean_difference(drl.finals, f.finals, rng)
-            parts.append({"what": f"{label} ends below DRL-EG: DRL-EG minus {label}, "
-                                  "95% CI above 0",
-                          "estimate": float(gap.value), "low": float(gap.low),
-                          "high": float(gap.high),
-                          "verdict": _interval_verdict(float(gap.low), float(gap.high),
-                                                       (0.0, np.inf)),
-                          "seeds_meeting": None, "n": None})
-    verdict = _combine([p["verdict"] for p in parts])
-    if not profile.meaningful:
-        verdict = "not judged (smoke profile: numbers mean nothing)"
-    effect = None
-    if "sac" in by_algo:
-        diff = bootstrap_mean_difference(drl.finals, by_algo["sac"].finals, rng)
-        t_stat, p_value = welch_test(drl.finals, by_algo["sac"].finals)
-        effect = {"name": "DRL-EG minus SAC, mean final return", "value": float(diff.value),
-                  "low": float(diff.low), "high": float(diff.high),
-                  "test": f"percentile bootstrap ({CONFIDENCE:.0%}); Welch t = {t_stat:.2f}, "
-                          f"p = {p_value:.3g}"}
-    judged = sorted(by_algo)
-    return {
-        "id": 1, "title": "MountainCarContinuous: only the demonstration-guided methods leave 0, "
-                          "and DRL-EG ends on top",
-        "paper": "SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn "
-                 "but end below DRL-EG",
-        "verdict": verdict, "parts": parts, "effect": effect, "algorithms": judged,
-    }
+def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
+    """The runs of each (env, algorithm) as the claims ledger reads them."""
+    groups = {}
+    for (env_id, algo), members in group_runs(runs).items():
+        _, matrix = curve_matrix(members)
+        groups[(env_id, algo)] = Group(env_id, algo, [r.spec["seed"] for r in members],
+                                       matrix[:, -1], matrix)
+    return groups
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -158,7 +91,6 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     rng = np.random.default_rng(REPORT_SEED)
     runs = outcome.runs
     bands, finals = summarise(runs, rng) if runs else ([], [])
-    claim = claim_mountaincar(finals, rng, profile)
     demo_lines = {}
     demos = {}
     for run in runs:
@@ -166,6 +98,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         if info:
             demo_lines[run.spec["env_id"]] = info["expert_return_mean"]
             demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
+    claims = judge_claims(claim_groups(runs), demo_lines, rng, profile.meaningful)
     title = f"Fig. 3 replication, profile '{profile.name}'"
     figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title)).decode()
               if bands else None)
@@ -179,7 +112,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     context = {
         "title": title, "profile": profile, "paper_seeds": PAPER_SEEDS_FIG3,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "figure_png_b64": figure, "finals": finals, "claim": claim, "budgets": budgets,
+        "figure_png_b64": figure, "finals": finals, "claims": claims, "budgets": budgets,
         "runs": sorted(runs, key=lambda r: (r.spec["env_id"], r.spec["algo"], r.spec["seed"])),
         "failed": outcome.failed, "skipped": outcome.skipped, "demos": list(demos.values()),
         "versions": first.get("versions", provenance.package_versions()),
@@ -187,7 +120,6 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "revisions": revisions or [provenance.git_revision()],
         "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
         "grid_wall_s": outcome.wall_time_s, "confidence": CONFIDENCE,
-        "mountaintop": MOUNTAINTOP,
     }
     env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
                              autoescape=jinja2.select_autoescape(["html"]),
@@ -196,7 +128,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
     summary = {
-        "profile": profile.name, "generated": context["generated"], "claim": claim,
+        "profile": profile.name, "generated": context["generated"], "claims": claims,
         "final_returns": [{"env_id": f.env_id, "algo": f.algo, "seeds": f.seeds,
                            "finals": f.finals.tolist(), "mean": f.mean, "ci95": [f.low, f.high]}
                           for f in finals],

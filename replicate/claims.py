@@ -1,0 +1,254 @@
+"""The claims ledger: each claim of the paper as a check over the run store, with a verdict.
+
+Every check compares a confidence interval with a threshold: it passes ("reproduced") when
+the whole interval lies on the claimed side, fails ("not reproduced") when the whole
+interval lies on the other side, and is "inconclusive" otherwise. A claim is reproduced
+only when all its checks pass, and not reproduced as soon as one fails. A claim whose runs
+are missing is "not judged", with what it needs. The thresholds are the harness's reading
+of the paper's words and are stated beside each check.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from replicate.stats import (CONFIDENCE, bootstrap_mean, bootstrap_mean_difference,
+                             paired_difference, welch_test)
+
+MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = ("MountainCarContinuous-v0", "Hopper-v5",
+                                             "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+MOUNTAINTOP = 90.0  # the paper's MountainCar success level
+NEAR_ZERO = 10.0  # |return| below this counts as "learned nothing" on MountainCar
+EQUIVALENCE_MARGIN = 0.10  # "indistinguishable": |DRL-EG - SAC| within 10% of SAC's return
+NEAR_DEMOS = 0.90  # "almost the same performance as the demonstrations": >= 90% of R_demo
+LABELS = {"sac": "SAC", "ppo": "PPO", "ppo-bc": "PPO+BC", "ddpgfd": "DDPGfD",
+          "drl-eg": "DRL-EG", "drl-eg-gmm": "DRL-EG (GMM)"}
+
+
+@dataclass
+class Group:
+    """The runs of one algorithm on one env, by seed: final returns and curves."""
+
+    env_id: str
+    algo: str
+    seeds: list[int]
+    finals: np.ndarray  # (runs,) return at the last evaluation point
+    curves: np.ndarray  # (runs, points) over the evaluation steps all runs share
+
+
+def interval_verdict(low: float, high: float, inside: tuple[float, float]) -> str:
+    """reproduced if [low, high] lies inside ``inside``, not reproduced if wholly outside."""
+    lo, hi = inside
+    if np.isnan(low) or np.isnan(high):
+        return "inconclusive"
+    if lo <= low and high <= hi:
+        return "reproduced"
+    if high < lo or low > hi:
+        return "not reproduced"
+    return "inconclusive"
+
+
+def combine(verdicts: list[str]) -> str:
+    if "not reproduced" in verdicts:
+        return "not reproduced"
+    return "reproduced" if verdicts and set(verdicts) == {"reproduced"} else "inconclusive"
+
+
+def instability(curve: np.ndarray) -> float:
+    """Sum of the drops between consecutive evaluations, over the curve's range: 0 for a
+    curve that never falls, about 1 for one that gives back everything it gained once."""
+    drops = np.clip(-np.diff(curve), 0.0, None).sum()
+    spread = np.ptp(curve)
+    return float(drops / spread) if spread > 0 else 0.0
+
+
+def _check(what: str, low: float, high: float, estimate: float, inside: tuple[float, float],
+           seeds_meeting: int | None = None, n: int | None = None) -> dict[str, Any]:
+    return {"what": what, "estimate": float(estimate), "low": float(low), "high": float(high),
+            "verdict": interval_verdict(float(low), float(high), inside),
+            "seeds_meeting": seeds_meeting, "n": n}
+
+
+def _mean_check(what: str, group: Group, inside: tuple[float, float],
+                rng: np.random.Generator, meets: Callable[[np.ndarray], np.ndarray]
+                ) -> dict[str, Any]:
+    est = bootstrap_mean(group.finals, rng)
+    return _check(what, est.low[0], est.high[0], est.value[0], inside,
+                  int(meets(group.finals).sum()), len(group.finals))
+
+
+def _difference_check(what: str, a: np.ndarray, b: np.ndarray, inside: tuple[float, float],
+                      rng: np.random.Generator) -> dict[str, Any]:
+    diff = bootstrap_mean_difference(a, b, rng)
+    return _check(what, diff.low, diff.high, diff.value, inside)
+
+
+def _effect(a: Group, b: Group, rng: np.random.Generator) -> dict[str, Any]:
+    diff = bootstrap_mean_difference(a.finals, b.finals, rng)
+    t_stat, p_value = welch_test(a.finals, b.finals)
+    return {"name": f"{LABELS[a.algo]} minus {LABELS[b.algo]} on {a.env_id}, mean final "
+                    "return", "value": float(diff.value), "low": float(diff.low),
+            "high": float(diff.high),
+            "test": f"percentile bootstrap ({CONFIDENCE:.0%}); Welch t = {t_stat:.2f}, "
+                    f"p = {p_value:.3g}"}
+
+
+def _claim(claim_id: int, title: str, paper: str, parts: list[dict], groups: list[Group],
+           effect: dict | None = None, missing: list[str] | None = None) -> dict[str, Any]:
+    if missing:
+        verdict = "not judged: no runs of " + ", ".join(missing)
+    else:
+        verdict = combine([p["verdict"] for p in parts])
+    return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict, "parts": parts,
+            "effect": effect, "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id}"
+                                                    for g in groups}),
+            "seeds": sorted({len(g.seeds) for g in groups})}
+
+
+def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> list[str]:
+    return [f"{LABELS[a]} on {e}" for e, a in pairs if (e, a) not in groups]
+
+
+def claim_1(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
+            rng: np.random.Generator) -> dict[str, Any]:
+    """MountainCar: SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn
+    but end below DRL-EG. Checks on algorithms without runs are left out, DRL-EG's is needed."""
+    title = "MountainCarContinuous: only the demonstration-guided methods leave 0, and DRL-EG ends on top"
+    paper = "SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn but end below DRL-EG"
+    missing = _need(groups, [(MOUNTAINCAR, "drl-eg")])
+    if missing:
+        return _claim(1, title, paper, [], [], missing=missing)
+    drl = groups[(MOUNTAINCAR, "drl-eg")]
+    used = [drl]
+    parts = [_mean_check(f"DRL-EG final return above {MOUNTAINTOP:g}", drl, (MOUNTAINTOP, np.inf),
+                         rng, lambda f: f > MOUNTAINTOP)]
+    for algo in ("sac", "ppo"):
+        if (MOUNTAINCAR, algo) in groups:
+            g = groups[(MOUNTAINCAR, algo)]
+            used.append(g)
+            parts.append(_mean_check(f"{LABELS[algo]} final return within +-{NEAR_ZERO:g}", g,
+                                     (-NEAR_ZERO, NEAR_ZERO), rng,
+                                     lambda f: np.abs(f) <= NEAR_ZERO))
+    for algo in ("ppo-bc", "ddpgfd"):
+        if (MOUNTAINCAR, algo) in groups:
+            g = groups[(MOUNTAINCAR, algo)]
+            used.append(g)
+            parts.append(_mean_check(f"{LABELS[algo]} learns: final return above {NEAR_ZERO:g}",
+                                     g, (NEAR_ZERO, np.inf), rng, lambda f: f > NEAR_ZERO))
+            parts.append(_difference_check(f"{LABELS[algo]} ends below DRL-EG: DRL-EG minus "
+                                           f"{LABELS[algo]} above 0", drl.finals, g.finals,
+                                           (0.0, np.inf), rng))
+    effect = _effect(drl, groups[(MOUNTAINCAR, "sac")], rng) if (MOUNTAINCAR, "sac") in groups \
+        else None
+    return _claim(1, title, paper, parts, used, effect)
+
+
+def claim_2(groups, demo_returns, rng) -> dict[str, Any]:
+    """Hopper and HalfCheetah: DRL-EG and SAC are indistinguishable (equivalence within a
+    margin of 10% of SAC's mean final return)."""
+    title = "Hopper and HalfCheetah: DRL-EG and SAC are indistinguishable"
+    paper = "when SAC already does well, guided exploration does not change the result"
+    missing = _need(groups, [(e, a) for e in (HOPPER, CHEETAH) for a in ("sac", "drl-eg")])
+    if missing:
+        return _claim(2, title, paper, [], [], missing=missing)
+    parts, used = [], []
+    for env_id in (HOPPER, CHEETAH):
+        drl, sac = groups[(env_id, "drl-eg")], groups[(env_id, "sac")]
+        used += [drl, sac]
+        margin = EQUIVALENCE_MARGIN * abs(float(np.mean(sac.finals)))
+        parts.append(_difference_check(
+            f"{env_id}: DRL-EG minus SAC within +-{EQUIVALENCE_MARGIN:.0%} of SAC's return "
+            f"(+-{margin:.0f})", drl.finals, sac.finals, (-margin, margin), rng))
+    return _claim(2, title, paper, parts, used, _effect(groups[(HOPPER, "drl-eg")],
+                                                        groups[(HOPPER, "sac")], rng))
+
+
+def claim_3(groups, demo_returns, rng) -> dict[str, Any]:
+    """Walker2d and Ant: DRL-EG beats every other algorithm that has runs, and its final
+    return reaches 90% of the demonstrations' return."""
+    title = "Walker2d and Ant: DRL-EG beats every other algorithm and ends near the demonstrations"
+    paper = "DRL-EG outperforms all other RL and RLfD algorithms and almost reaches the demonstrations' return"
+    missing = _need(groups, [(e, a) for e in (WALKER, ANT) for a in ("sac", "drl-eg")])
+    missing += [f"demonstrations on {e}" for e in (WALKER, ANT) if e not in demo_returns]
+    if missing:
+        return _claim(3, title, paper, [], [], missing=missing)
+    parts, used = [], []
+    for env_id in (WALKER, ANT):
+        drl = groups[(env_id, "drl-eg")]
+        used.append(drl)
+        for algo in ("sac", "ppo", "ppo-bc", "ddpgfd"):
+            if (env_id, algo) in groups:
+                other = groups[(env_id, algo)]
+                used.append(other)
+                parts.append(_difference_check(f"{env_id}: DRL-EG minus {LABELS[algo]} above 0",
+                                               drl.finals, other.finals, (0.0, np.inf), rng))
+        level = NEAR_DEMOS * demo_returns[env_id]
+        parts.append(_mean_check(f"{env_id}: DRL-EG final return at least {NEAR_DEMOS:.0%} of "
+                                 f"the demonstrations' {demo_returns[env_id]:.0f}", drl,
+                                 (level, np.inf), rng, lambda f, level=level: f >= level))
+    return _claim(3, title, paper, parts, used, _effect(groups[(ANT, "drl-eg")],
+                                                        groups[(ANT, "sac")], rng))
+
+
+def claim_4(groups, demo_returns, rng) -> dict[str, Any]:
+    """Ant: SAC and DDPGfD train unstably, DRL-EG more stably. Instability of a run: the sum
+    of its curve's drops over its range; checked as a difference of means over seeds."""
+    title = "Ant: SAC and DDPGfD train unstably; DRL-EG is more stable"
+    paper = "SAC and DDPGfD have an unstable training course on Ant; DRL-EG shows better stability"
+    missing = _need(groups, [(ANT, a) for a in ("drl-eg", "sac", "ddpgfd")])
+    if missing:
+        return _claim(4, title, paper, [], [], missing=missing)
+    drl = groups[(ANT, "drl-eg")]
+    drl_instability = np.array([instability(c) for c in drl.curves])
+    parts, used = [], [drl]
+    for algo in ("sac", "ddpgfd"):
+        other = groups[(ANT, algo)]
+        used.append(other)
+        other_instability = np.array([instability(c) for c in other.curves])
+        parts.append(_difference_check(f"Ant: instability of {LABELS[algo]} minus DRL-EG's "
+                                       "above 0", other_instability, drl_instability,
+                                       (0.0, np.inf), rng))
+    return _claim(4, title, paper, parts, used)
+
+
+def claim_5(groups, demo_returns, rng) -> dict[str, Any]:
+    """Fig. 4: on Ant, with the same seeds and initial weights, DRL-EG ends above SAC (paired
+    difference over seeds) and escapes where SAC stays stuck on at least one seed."""
+    title = "Fig. 4, Ant with paired seeds: DRL-EG escapes a local optimum where SAC stays"
+    paper = "same seeds and initial weights: SAC stays in a local optimum on a seed where DRL-EG escapes; DRL-EG ends at least as high"
+    missing = _need(groups, [(ANT, "drl-eg"), (ANT, "sac")])
+    if missing:
+        return _claim(5, title, paper, [], [], missing=missing)
+    drl, sac = groups[(ANT, "drl-eg")], groups[(ANT, "sac")]
+    common = sorted(set(drl.seeds) & set(sac.seeds))
+    a = np.array([drl.finals[drl.seeds.index(s)] for s in common])
+    b = np.array([sac.finals[sac.seeds.index(s)] for s in common])
+    estimate, p_value = paired_difference(a, b, rng)
+    part = _check(f"Ant, {len(common)} paired seeds: DRL-EG minus SAC above 0 "
+                  f"(Wilcoxon signed-rank p = {p_value:.3g})", estimate.low, estimate.high,
+                  estimate.value, (0.0, np.inf), int((a > b).sum()), len(common))
+    escaped = int(((b < 0.5 * a) & (a > 0)).sum())
+    stuck = {"what": "a seed on which SAC ends below half of DRL-EG's return",
+             "estimate": float(escaped), "low": float(escaped), "high": float(escaped),
+             "verdict": "reproduced" if escaped else "not reproduced",
+             "seeds_meeting": escaped, "n": len(common)}
+    return _claim(5, title, paper, [part, stuck], [drl, sac])
+
+
+CLAIMS = (claim_1, claim_2, claim_3, claim_4, claim_5)
+
+
+def judge_claims(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
+                 rng: np.random.Generator, meaningful: bool) -> list[dict[str, Any]]:
+    """Every claim's verdict; a profile whose numbers mean nothing judges none."""
+    ledger = []
+    for judge in CLAIMS:
+        claim = judge(groups, demo_returns, rng)
+        if not meaningful and not claim["verdict"].startswith("not judged"):
+            claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"
+        ledger.append(claim)
+    return ledger

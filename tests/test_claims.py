@@ -1,0 +1,86 @@
+"""Each claim's checks on synthetic run groups: they can pass, fail, or stay inconclusive."""
+
+import numpy as np
+import pytest
+
+from replicate.claims import (ANT, CHEETAH, HOPPER, MOUNTAINCAR, WALKER, Group, claim_1,
+                              claim_2, claim_3, claim_4, claim_5, instability, judge_claims)
+
+
+def group(env_id, algo, finals, curves=None):
+    finals = np.asarray(finals, dtype=float)
+    if curves is None:
+        curves = np.linspace(0, 1, 5)[None, :] * finals[:, None]  # steady climbs
+    return Group(env_id, algo, list(range(len(finals))), finals, np.asarray(curves, float))
+
+
+def rng():
+    return np.random.default_rng(0)
+
+
+def test_instability_hand_computed():
+    assert instability(np.array([0.0, 1.0, 2.0, 3.0])) == 0.0
+    assert instability(np.array([0.0, 4.0, 0.0, 4.0])) == pytest.approx(1.0)  # drop 4 / range 4
+    assert instability(np.array([2.0, 2.0])) == 0.0
+
+
+def test_claim_1_reproduced_and_not():
+    groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94, 96, 93]),
+              (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0, -0.1, 0]),
+              (MOUNTAINCAR, "ppo"): group(MOUNTAINCAR, "ppo", [1, -2, 0, 0.5]),
+              (MOUNTAINCAR, "ddpgfd"): group(MOUNTAINCAR, "ddpgfd", [60, 70, 65, 50])}
+    assert claim_1(groups, {}, rng())["verdict"] == "reproduced"
+    groups[(MOUNTAINCAR, "ppo-bc")] = group(MOUNTAINCAR, "ppo-bc", [97, 97, 98, 97])
+    claim = claim_1(groups, {}, rng())
+    assert claim["verdict"] == "not reproduced"  # PPO+BC does not end below DRL-EG
+    failing = [p["what"] for p in claim["parts"] if p["verdict"] == "not reproduced"]
+    assert failing == ["PPO+BC ends below DRL-EG: DRL-EG minus PPO+BC above 0"]
+
+
+def test_claim_2_equivalence_margin():
+    same = {(e, a): group(e, a, [1000, 1010, 990, 1005]) for e in (HOPPER, CHEETAH)
+            for a in ("sac", "drl-eg")}
+    assert claim_2(same, {}, rng())["verdict"] == "reproduced"
+    apart = dict(same)
+    apart[(HOPPER, "drl-eg")] = group(HOPPER, "drl-eg", [2000, 2010, 1990, 2005])
+    assert claim_2(apart, {}, rng())["verdict"] == "not reproduced"
+    noisy = dict(same)
+    noisy[(HOPPER, "drl-eg")] = group(HOPPER, "drl-eg", [600, 1400, 800, 1300])
+    assert claim_2(noisy, {}, rng())["verdict"] == "inconclusive"
+
+
+def test_claim_3_needs_demonstrations_and_judges_both_parts():
+    groups = {(e, "drl-eg"): group(e, "drl-eg", [3800, 3900, 3850, 3950]) for e in (WALKER, ANT)}
+    groups.update({(e, "sac"): group(e, "sac", [2000, 2500, 2200, 2100]) for e in (WALKER, ANT)})
+    assert claim_3(groups, {}, rng())["verdict"].startswith("not judged")
+    assert claim_3(groups, {WALKER: 4000, ANT: 4000}, rng())["verdict"] == "reproduced"
+    assert claim_3(groups, {WALKER: 4000, ANT: 6000}, rng())["verdict"] == "not reproduced"
+
+
+def test_claim_4_compares_instability():
+    wobbly = np.array([[0, 100, 10, 100, 20], [0, 90, 5, 95, 30], [0, 80, 0, 90, 10]], float)
+    steady = np.array([[0, 20, 40, 60, 80], [0, 25, 45, 70, 85], [0, 15, 35, 55, 75]], float)
+    groups = {(ANT, "drl-eg"): group(ANT, "drl-eg", steady[:, -1], steady),
+              (ANT, "sac"): group(ANT, "sac", wobbly[:, -1], wobbly),
+              (ANT, "ddpgfd"): group(ANT, "ddpgfd", wobbly[:, -1], wobbly)}
+    assert claim_4(groups, {}, rng())["verdict"] == "reproduced"
+    swapped = {(ANT, "drl-eg"): groups[(ANT, "sac")], (ANT, "sac"): groups[(ANT, "drl-eg")],
+               (ANT, "ddpgfd"): groups[(ANT, "drl-eg")]}
+    assert claim_4(swapped, {}, rng())["verdict"] == "not reproduced"
+
+
+def test_claim_5_pairs_seeds():
+    groups = {(ANT, "drl-eg"): group(ANT, "drl-eg", [3000, 3100, 2900, 3050]),
+              (ANT, "sac"): group(ANT, "sac", [900, 2800, 2700, 2950])}
+    claim = claim_5(groups, {}, rng())
+    assert claim["verdict"] == "reproduced"
+    assert claim["parts"][1]["seeds_meeting"] == 1  # seed 0: SAC stuck below half
+
+
+def test_missing_runs_and_meaningless_profiles_are_not_judged():
+    ledger = judge_claims({}, {}, rng(), meaningful=True)
+    assert [c["id"] for c in ledger] == [1, 2, 3, 4, 5]
+    assert all(c["verdict"].startswith("not judged: no runs of") for c in ledger)
+    groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94])}
+    smoke = judge_claims(groups, {}, rng(), meaningful=False)
+    assert smoke[0]["verdict"] == "not judged (smoke profile: numbers mean nothing)"
