@@ -35,6 +35,14 @@ def replicate_fig3(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(name="ablate-threshold", python=PYTHON)
+def ablate_threshold(session: nox.Session) -> None:
+    """Sweep DRL-EG's T2 (and sigma) with optuna; write reports/ablate-threshold/index.html."""
+    _install(session)
+    session.run("python", "-m", "replicate", "ablate-threshold", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 @nox.session(name="replicate-table1", python=PYTHON)
 def replicate_table1(session: nox.Session) -> None:
     """Write reports/table1/index.html: env dims (paper beside harness) and demonstrations."""

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,report,table1,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,ablate-threshold,report,table1,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -119,6 +119,29 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="report directory (default: reports/fig3, or reports/smoke/fig3 "
                            "for the smoke profile)")
 
+    ablate = sub.add_parser(
+        "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
+        description="Train DRL-EG over a grid of T2 (and sigma) values with optuna's "
+                    "GridSampler, at the Fig. 3 profile's budget and seeds, and write "
+                    "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
+                    "workers can share one --storage.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ablate.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+                        help="budget profile (as for fig3)")
+    ablate.add_argument("--seeds", type=int, default=None,
+                        help="number of seeds (default: the profile's)")
+    ablate.add_argument("--thresholds", type=float, nargs="+", default=None,
+                        help="T2 values (default: the profile's grid, 0 and 'always' included)")
+    ablate.add_argument("--sigmas", type=float, nargs="+", default=None,
+                        help="guider noise values (default: the profile's grid)")
+    ablate.add_argument("--storage", default=None,
+                        help="optuna storage URL (default: SQLite in the run store)")
+    ablate.add_argument("--workers", type=int, default=None,
+                        help="parallel training processes (default: one per core)")
+    ablate.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    ablate.add_argument("--out", type=Path, default=None,
+                        help="report directory (default: reports/ablate-threshold)")
+
     report = sub.add_parser(
         "report", help="rebuild reports from the run store without training",
         description="Rebuild the Fig. 3 report of a profile from the runs already in the "
@@ -231,6 +254,17 @@ def _default_out(profile: str) -> Path:
     return Path("reports/smoke/fig3") if profile == "smoke" else Path("reports/fig3")
 
 
+def _cmd_ablate(args: argparse.Namespace) -> int:
+    from replicate.ablation import run_threshold_ablation
+
+    report = run_threshold_ablation(profile=args.profile, seeds=args.seeds, store=args.store,
+                                    out_dir=args.out, storage=args.storage,
+                                    workers=args.workers, thresholds=args.thresholds,
+                                    sigmas=args.sigmas)
+    print(f"report: {report}")
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from replicate.experiments import rebuild_figure3
 
@@ -271,7 +305,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3,
-            "report": _cmd_report, "table1": _cmd_table1,
+            "report": _cmd_report, "table1": _cmd_table1, "ablate-threshold": _cmd_ablate,
             "algos": _cmd_algos, "envs": _cmd_envs}
 
 

@@ -30,6 +30,10 @@ from envs import env_spec, make_env
 from replicate.errors import DemoError
 
 FORMAT_VERSION = 1
+# Demonstration rollouts seed their env from here up, apart from every training seed
+# (0, 1, ...) and evaluation seed (10,000 + seed): otherwise training seed 0 would start
+# its episodes from exactly the demonstrations' start states.
+DEMO_SEED_OFFSET = 1_000_000
 DEMO_DATA_DIR = "data/demos"
 
 
@@ -187,10 +191,11 @@ def rollout_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
     if n_pairs <= 0:
         raise DemoError(f"number of demonstration pairs must be positive, got {n_pairs}",
                         "pass --pairs 1000 (the paper's number)")
-    env = make_env(env_id, seed=seed)
+    env_seed = DEMO_SEED_OFFSET + seed
+    env = make_env(env_id, seed=env_seed)
     observations, actions, episode_returns = [], [], []
     rewards, next_observations, terminals, truncations = [], [], [], []
-    obs, _ = env.reset(seed=seed)
+    obs, _ = env.reset(seed=env_seed)
     while len(observations) < n_pairs or len(episode_returns) < min_episodes:
         done, total = False, 0.0
         while not done:
@@ -221,6 +226,7 @@ def rollout_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
         "expert_return_mean": float(np.mean(episode_returns)),
         "expert_return_std": float(np.std(episode_returns)),
         "seed": seed,
+        "env_seed": env_seed,
         "command": command,
         **(extra_metadata or {}),
     }

@@ -225,6 +225,12 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     return report
 
 
+def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
+    """The complete runs of ``specs`` in the store (nothing is trained)."""
+    directories = [prepare(spec).directory(store) for spec in specs]
+    return [load_run(d) for d in directories if is_complete(d)]
+
+
 def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
                     store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")) -> Path:
     """Write the Fig. 3 report from the runs already in the store; train nothing. Cells of

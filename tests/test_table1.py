@@ -2,6 +2,8 @@ import re
 
 from envs import ENV_SPECS
 from replicate.cli import main
+from replicate.demos import default_demo_path, load_demos
+from tests.helpers import MOUNTAINCAR
 
 
 def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
@@ -10,7 +12,10 @@ def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
     ant = re.search(r"<code>Ant-v5</code></td><td>Ant-v2</td>\s*<td class=\"num\">(\d+) / (\d+)",
                     html)
     assert ant and ant.groups() == ("111", "105")
-    assert "MountainCarContinuous-v0.v1.npz" in html and "96.0 &plusmn; 0.9 (7)" in html
+    meta = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR).metadata
+    shown = (f"{meta['expert_return_mean']:.1f} &plusmn; {meta['expert_return_std']:.1f} "
+             f"({meta['expert_episodes']})")
+    assert "MountainCarContinuous-v0.v1.npz" in html and shown in html
     demo_section = html[html.index('id="demonstrations"'):]
     assert demo_section.count("<tr><td><code>") == len(ENV_SPECS)  # every env has a row
     assert "http://" not in html and "https://" not in html

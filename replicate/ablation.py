@@ -1,0 +1,245 @@
+"""The threshold ablation: how much DRL-EG's result depends on T2 (and on sigma).
+
+The paper gives no value for the discriminator's threshold T2 or the guider's noise sigma.
+This sweep trains DRL-EG over a grid of them with optuna's GridSampler, every trial being
+the same seeds and budget as the Fig. 3 profile, and reports final return and area under
+the curve against T2 with bootstrap CIs. Two ends of the grid are checks as much as
+settings: T2 = 0 guides nowhere, so its runs must equal SAC's run for run; a huge T2
+guides every step while the gate is open.
+
+Trials go through the run store, so a sweep that is stopped resumes where it stopped, and
+several workers pointed at one optuna storage (any database URL optuna accepts) share the
+grid; SQLite in the run store is the default.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import jinja2
+import numpy as np
+
+from replicate.errors import HarnessError
+from replicate.experiments import (DRL_EG_ENV_DEFAULTS, GridOutcome, Profile,
+                                   algorithm_overrides, get_profile, run_grid, stored_runs)
+from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
+from replicate.spec import RunSpec
+from replicate.stats import bootstrap_mean
+
+ALWAYS = 1e6  # a threshold no distance reaches: every state is guided while the gate is open
+THRESHOLDS: dict[str, list[float]] = {
+    "smoke": [0.0, 0.05, ALWAYS],
+    "quick": [0.0, 0.01, 0.05, 0.2, ALWAYS],
+    "paper": [0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, ALWAYS],
+}
+SIGMAS: dict[str, list[float]] = {"smoke": [0.1], "quick": [0.1], "paper": [0.05, 0.1, 0.3]}
+ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome (claim 1)
+REPORT_SEED = 20_260_102
+
+
+@dataclass
+class Cell:
+    """The runs of one (T2, sigma) point of the grid."""
+
+    threshold: float
+    sigma: float
+    runs: list[Run]
+
+
+def threshold_label(threshold: float) -> str:
+    if threshold == 0:
+        return "0 (never)"
+    return "always" if threshold >= ALWAYS else f"{threshold:g}"
+
+
+def ablation_specs(profile: Profile, env_id: str, threshold: float, sigma: float,
+                   seeds: int) -> list[RunSpec]:
+    hyper = algorithm_overrides("drl-eg", profile.overrides)
+    hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
+    hyper.update(guide_threshold=float(threshold), guide_noise_std=float(sigma))
+    return [RunSpec("drl-eg", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
+                    profile.eval_episodes, hyper) for seed in range(seeds)]
+
+
+def sac_specs(profile: Profile, env_id: str, seeds: int) -> list[RunSpec]:
+    hyper = algorithm_overrides("sac", profile.overrides)
+    return [RunSpec("sac", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
+                    profile.eval_episodes, hyper) for seed in range(seeds)]
+
+
+def area_under_curve(run: Run) -> float:
+    """Mean evaluation return over the run, trapezoids over env steps: one number that
+    rewards learning early as well as ending high."""
+    steps = run.curve["step"].to_numpy(float)
+    returns = run.curve["return_mean"].to_numpy(float)
+    return float(np.trapezoid(returns, steps) / (steps[-1] - steps[0]))
+
+
+def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
+                           store: Path = Path("runs"), out_dir: Path | None = None,
+                           storage: str | None = None, workers: int | None = None,
+                           thresholds: list[float] | None = None,
+                           sigmas: list[float] | None = None, env_id: str = ABLATION_ENV,
+                           checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> Path:
+    """Run (or finish) the sweep and write its report; return the report's path."""
+    import optuna
+
+    chosen = get_profile(profile)
+    if env_id not in chosen.steps:
+        raise HarnessError(f"profile '{profile}' has no budget for {env_id}",
+                           f"pick one of {sorted(chosen.steps)}")
+    n_seeds = chosen.seeds if seeds is None else seeds
+    if n_seeds <= 0:
+        raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 3")
+    grid_t2 = sorted(thresholds if thresholds is not None else THRESHOLDS[profile])
+    grid_sigma = sorted(sigmas if sigmas is not None else SIGMAS[profile])
+    if any(t < 0 for t in grid_t2) or any(s < 0 for s in grid_sigma):
+        raise HarnessError("thresholds and sigmas must be >= 0", "pass values like 0 0.05 0.2")
+    store = Path(store)
+    store.mkdir(parents=True, exist_ok=True)
+    storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
+    out_dir = Path(out_dir or ("reports/smoke/ablate-threshold" if profile == "smoke"
+                               else "reports/ablate-threshold"))
+
+    # SAC on the same seeds: what T2 = 0 must reproduce exactly.
+    sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
+                           checkpoint_interval)
+    failed = list(sac_outcome.failed)
+
+    def objective(trial: Any) -> float:
+        threshold = trial.suggest_categorical("guide_threshold", grid_t2)
+        sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
+        outcome = run_grid(ablation_specs(chosen, env_id, threshold, sigma, n_seeds), store,
+                           workers, checkpoint_interval)
+        failed.extend(outcome.failed)
+        if not outcome.runs:
+            raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",
+                               "see the reasons printed above")
+        trial.set_user_attr("run_ids", [r.path.name for r in outcome.runs])
+        trial.set_user_attr("auc_mean", float(np.mean([area_under_curve(r)
+                                                        for r in outcome.runs])))
+        return float(np.mean([r.final_return for r in outcome.runs]))
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study_name = f"ablate-threshold-{profile}-{env_id}-s{n_seeds}"
+    study = optuna.create_study(
+        study_name=study_name, storage=storage, load_if_exists=True, direction="maximize",
+        sampler=optuna.samplers.GridSampler({"guide_threshold": grid_t2,
+                                             "guide_noise_std": grid_sigma}, seed=0))
+    done = {(t.params["guide_threshold"], t.params["guide_noise_std"])
+            for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE}
+    remaining = len(grid_t2) * len(grid_sigma) - len(done & {(t, s) for t in grid_t2
+                                                               for s in grid_sigma})
+    if remaining:
+        study.optimize(objective, n_trials=remaining)
+
+    # The report reads the run store, not the study: every number traces to run directories.
+    cells = []
+    for threshold in grid_t2:
+        for sigma in grid_sigma:
+            specs = ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
+            cells.append(Cell(threshold, sigma, stored_runs(specs, store)))
+    return write_ablation_report(cells, sac_outcome, chosen, env_id, study_name, storage,
+                                 failed, out_dir)
+
+
+def zero_threshold_equals_sac(cells: list[Cell], sac_runs: list[Run]) -> dict[str, Any] | None:
+    """Compare every T2 = 0 run with the SAC run of its seed, curve for curve."""
+    zero_runs = [r for c in cells if c.threshold == 0 for r in c.runs]
+    if not zero_runs or not sac_runs:
+        return None
+    by_seed = {r.spec["seed"]: r for r in sac_runs}
+    pairs = [(r, by_seed[r.spec["seed"]]) for r in zero_runs if r.spec["seed"] in by_seed]
+    equal = [r.curve["returns"].tolist() == s.curve["returns"].tolist() for r, s in pairs]
+    return {"pairs": len(pairs), "equal": int(sum(equal)), "holds": bool(pairs) and all(equal)}
+
+
+def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float | None) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    sns.set_theme(style="whitegrid", context="notebook")
+    sigmas = sorted({r["sigma"] for r in rows})
+    labels = list(dict.fromkeys(r["label"] for r in rows))
+    palette = dict(zip(sigmas, sns.color_palette("colorblind", len(sigmas)), strict=True))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    for ax, key, reference, name in ((axes[0], "final", sac_final, "final return"),
+                                     (axes[1], "auc", sac_auc, "area under the curve")):
+        for i, sigma in enumerate(sigmas):
+            xs, ys, lows, highs = [], [], [], []
+            for r in rows:
+                if r["sigma"] == sigma and not math.isnan(r[key]["mean"]):
+                    xs.append(labels.index(r["label"]) + (i - (len(sigmas) - 1) / 2) * 0.08)
+                    ys.append(r[key]["mean"])
+                    lows.append(r[key]["mean"] - r[key]["low"] if r[key]["n"] > 1 else 0)
+                    highs.append(r[key]["high"] - r[key]["mean"] if r[key]["n"] > 1 else 0)
+            ax.errorbar(xs, ys, yerr=[lows, highs], fmt="o-", capsize=3, color=palette[sigma],
+                        label=f"DRL-EG, sigma = {sigma:g}")
+        if reference is not None:
+            ax.axhline(reference, color="0.3", linestyle="--", linewidth=1, label="SAC")
+        ax.set_xticks(range(len(labels)), labels)
+        ax.set_xlabel("discriminator threshold T2")
+        ax.set_ylabel(name)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
+                          env_id: str, study_name: str, storage: str,
+                          failed: list[tuple[str, str]], out_dir: Path) -> Path:
+    from replicate import provenance
+    from replicate.report import _atomic_write
+
+    rng = np.random.default_rng(REPORT_SEED)
+
+    def estimate(values: list[float]) -> dict[str, Any]:
+        if not values:
+            return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
+        est = bootstrap_mean(np.array(values), rng)
+        return {"mean": float(est.value[0]), "low": float(est.low[0]),
+                "high": float(est.high[0]), "n": len(values)}
+
+    rows = [{"threshold": c.threshold, "sigma": c.sigma, "label": threshold_label(c.threshold),
+             "final": estimate([r.final_return for r in c.runs]),
+             "auc": estimate([area_under_curve(r) for r in c.runs]),
+             "runs": [r.path.name for r in c.runs]} for c in cells]
+    sac_runs = sac_outcome.runs
+    sac_final = float(np.mean([r.final_return for r in sac_runs])) if sac_runs else None
+    sac_auc = float(np.mean([area_under_curve(r) for r in sac_runs])) if sac_runs else None
+    context = {
+        "title": f"Threshold ablation on {env_id}, profile '{profile.name}'",
+        "profile": profile, "env_id": env_id, "rows": rows,
+        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "figure_png_b64": base64.b64encode(_figure(rows, sac_final, sac_auc)).decode(),
+        "zero_check": zero_threshold_equals_sac(cells, sac_runs), "sac_final": sac_final,
+        "steps": profile.steps[env_id], "study_name": study_name,
+        "storage": storage.split("///")[-1] if storage.startswith("sqlite") else "(database URL)",
+        "failed": failed, "always": ALWAYS, "sac_runs": [r.path.name for r in sac_runs],
+        "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}
+                            | {provenance.git_revision()}),
+    }
+    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
+                                     autoescape=jinja2.select_autoescape(["html"]),
+                                     undefined=jinja2.StrictUndefined)
+    html = environment.get_template("ablation.html").render(**context)
+    out_dir = Path(out_dir)
+    _atomic_write(out_dir / "index.html", html.encode())
+    summary = {"profile": profile.name, "env_id": env_id, "rows": rows,
+               "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
+               "failed": [{"run_id": i, "reason": why} for i, why in failed]}
+    _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    return out_dir / "index.html"
