@@ -146,16 +146,35 @@ def _worker(prepared: PreparedRun, store: str, progress: Any, checkpoint_interva
     return prepared.run_id
 
 
-def _estimate_rate(store: Path) -> float:
-    """Env steps per second per run, from the store's past runs (a guess when none)."""
-    rates = []
+DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
+
+
+def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
+    """Env steps per second per run, by (algorithm, env), from the store's finished runs."""
+    rates: dict[tuple[str, str], list[float]] = {}
     if store.is_dir():
         for path in store.iterdir():
             if is_complete(path):
-                rate = load_run(path).provenance.get("env_steps_per_s")
+                run = load_run(path)
+                rate = run.provenance.get("env_steps_per_s")
                 if rate:
-                    rates.append(rate)
-    return sum(rates) / len(rates) if rates else 40.0
+                    rates.setdefault((run.spec["algo"], run.spec["env_id"]), []).append(rate)
+    return {key: sum(values) / len(values) for key, values in rates.items()}
+
+
+def estimate_minutes(missing: list[PreparedRun], store: Path, workers: int) -> float:
+    """Wall minutes to train ``missing`` on ``workers`` processes, from the speed each
+    algorithm had on each env in the store (the same algorithm elsewhere, else a guess)."""
+    rates = _measured_rates(store)
+    by_algo: dict[str, list[float]] = {}
+    for (algo, _), rate in rates.items():
+        by_algo.setdefault(algo, []).append(rate)
+    seconds = 0.0
+    for p in missing:
+        rate = rates.get((p.spec.algo, p.spec.env_id)) or (
+            min(by_algo[p.spec.algo]) if p.spec.algo in by_algo else DEFAULT_STEPS_PER_S)
+        seconds += p.spec.total_steps / rate
+    return seconds / workers / 60
 
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
@@ -166,11 +185,10 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     missing = [p for p in prepared if not is_complete(p.directory(store))]
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
     total_steps = sum(p.spec.total_steps for p in missing)
-    rate = _estimate_rate(store)
-    estimate_min = total_steps / rate / workers / 60
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
           f"training {len(missing)} runs, {total_steps:,} env steps on {workers} worker(s); "
-          f"estimated {estimate_min:.1f} min at ~{rate:.0f} env steps/s per run", flush=True)
+          f"estimated {estimate_minutes(missing, store, workers):.0f} min on this machine "
+          "(from the speeds of the store's runs)", flush=True)
 
     started = time.time()
     failed: list[tuple[str, str]] = []
