@@ -112,6 +112,11 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
     fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig3.add_argument("--executor", default="local", choices=["local", "ray"],
+                      help="local processes, or tasks on a running Ray cluster (--address)")
+    fig3.add_argument("--address", default=None,
+                      help="HOST:PORT of the Ray head for --executor ray; the run store must "
+                           "be on a filesystem every node sees")
     fig3.add_argument("--checkpoint-interval", type=int, default=10_000,
                       help="env steps between checkpoints of each run (0: none); an "
                            "interrupted figure resumes its unfinished runs from them")
@@ -245,7 +250,8 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
 
     out = args.out or _default_out(args.profile)
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
-                         workers=args.workers, checkpoint_interval=args.checkpoint_interval)
+                         workers=args.workers, checkpoint_interval=args.checkpoint_interval,
+                         executor=args.executor, address=args.address)
     print(f"report: {report}")
     return 0
 

@@ -177,12 +177,21 @@ def estimate_minutes(missing: list[PreparedRun], store: Path, workers: int) -> f
     return seconds / workers / 60
 
 
+EXECUTORS = ("local", "ray")
+
+
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
-             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> GridOutcome:
-    """Train every spec missing from the store, in parallel processes, with one progress bar."""
+             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
+             address: str | None = None) -> GridOutcome:
+    """Train every spec missing from the store with one progress display: in local
+    processes (one per core by default), or as tasks on an existing Ray cluster."""
+    if executor not in EXECUTORS:
+        raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
+    if executor == "ray":
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
     total_steps = sum(p.spec.total_steps for p in missing)
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
@@ -226,7 +235,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
 
 def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
                 out_dir: Path = Path("reports/fig3"), workers: int | None = None,
-                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> Path:
+                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
+                address: str | None = None) -> Path:
     """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
     from replicate.report import write_figure3_report
 
@@ -234,7 +244,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     specs, skipped = figure3_grid(chosen, seeds)
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers, checkpoint_interval)
+    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address)
     outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
@@ -247,6 +257,52 @@ def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
     """The complete runs of ``specs`` in the store (nothing is trained)."""
     directories = [prepare(spec).directory(store) for spec in specs]
     return [load_run(d) for d in directories if is_complete(d)]
+
+
+def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
+    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval)
+    return prepared.run_id
+
+
+def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
+                address: str | None, checkpoint_interval: int) -> GridOutcome:
+    """One Ray task per missing run, one CPU each. The store must be a path every node
+    sees (a shared filesystem), and every node needs this project installed."""
+    try:
+        import ray
+    except ImportError:
+        raise HarnessError("the Ray executor needs ray", "pip install 'ray>=2.9'") from None
+    if address is None:
+        raise HarnessError("--executor ray needs the cluster's address",
+                           "pass --address HOST:PORT of a running Ray head")
+    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    cluster_cpus = int(ray.cluster_resources().get("CPU", 1))
+    total_steps = sum(p.spec.total_steps for p in missing)
+    print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
+          f"training {len(missing)} runs, {total_steps:,} env steps on the Ray cluster at "
+          f"{address} ({cluster_cpus} CPUs); estimated "
+          f"{estimate_minutes(missing, store, cluster_cpus):.0f} min", flush=True)
+    started = time.time()
+    failed: list[tuple[str, str]] = []
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
+    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval): p for p in missing}
+    with tqdm(total=len(missing), unit="run", dynamic_ncols=True, desc="training on Ray") as bar:
+        while pending:
+            finished, _ = ray.wait(list(pending), num_returns=1)
+            for ref in finished:
+                run = pending.pop(ref)
+                try:
+                    ray.get(ref)
+                except Exception as error:  # the run's own error, wrapped by Ray
+                    cause = getattr(error, "cause", None) or error
+                    reason = f"{type(cause).__name__}: {cause}".replace("\n", " ")
+                    failed.append((run.run_id, reason))
+                    tqdm.write(f"run failed: {run.run_id}: {reason}")
+                bar.update(1)
+                bar.set_postfix_str(f"running {min(len(pending), cluster_cpus)}, "
+                                    f"left {len(pending)}, failed {len(failed)}", refresh=False)
+    runs = [load_run(p.directory(store)) for p in prepared if is_complete(p.directory(store))]
+    return GridOutcome(runs, failed, time.time() - started)
 
 
 def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
