@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import subprocess
@@ -37,6 +38,13 @@ def git_revision() -> str:
         except (OSError, subprocess.SubprocessError):
             continue
     return "unknown"
+
+
+@functools.cache
+def code_revision() -> str:
+    """``git_revision()`` as it was when this process first asked: the runner asks when it
+    is imported, so a commit made while a run trains does not relabel the run's code."""
+    return git_revision()
 
 
 def machine() -> dict[str, str | int]:

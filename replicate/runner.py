@@ -39,6 +39,8 @@ from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.errors import HarnessError
 from replicate.spec import RunSpec, spec_hash
 
+provenance.code_revision()  # fix the code's revision when the code is loaded
+
 CURVE_COLUMNS = ["step", "return_mean", "return_std", "returns", "guided_fraction", "gate_open",
                  "wall_s"]
 
@@ -218,7 +220,7 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
         "seed": spec.seed, "started_utc": sittings[0]["started_utc"],
         "wall_time_s": round(wall, 3), "sittings": sittings,
         "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
-        "git_revision": provenance.git_revision(), "versions": provenance.package_versions(),
+        "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
         "machine": provenance.machine(),
         "demos": None if prepared.demos is None else {
             "sha256": prepared.demos.sha256, "path": prepared.resolved["demos_path"],
