@@ -43,6 +43,15 @@ def ablate_threshold(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(python=PYTHON)
+def bench(session: nox.Session) -> None:
+    """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""
+    _install(session)
+    session.install("stable-baselines3==2.9.2")  # the reference, a bench-only dependency
+    session.run("python", "benchmarks/bench.py", *session.posargs,
+                env={"MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"})
+
+
 @nox.session(name="replicate-table1", python=PYTHON)
 def replicate_table1(session: nox.Session) -> None:
     """Write reports/table1/index.html: env dims (paper beside harness) and demonstrations."""

@@ -17,10 +17,11 @@ import numpy as np
 
 from replicate import provenance
 from replicate.experiments import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
-from replicate.figures import CurveBand, learning_curves_png
+from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
 from replicate.claims import Group, judge_claims
-from replicate.stats import CONFIDENCE, bootstrap_mean
+from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean,
+                             probability_of_improvement, score_profile, stratified_bootstrap_ci)
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
 
@@ -77,6 +78,40 @@ def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
     return groups
 
 
+def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
+                      rng: np.random.Generator) -> dict[str, Any] | None:
+    """IQM, performance profiles and probability of improvement over the envs that have
+    demonstrations, on final returns divided by the demonstrations' return (Agarwal et
+    al. 2021); every algorithm takes the same number of runs per env (the smallest)."""
+    algos = sorted({a for _, a in groups})
+    tasks = [e for e in sorted({e for e, _ in groups}) if e in demo_returns
+             and all((e, a) in groups for a in algos)]
+    if not tasks or not algos:
+        return None
+    runs = min(len(groups[(e, a)].finals) for e in tasks for a in algos)
+    if runs < 2:
+        return None
+    scores = {a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks],
+                          axis=1) for a in algos}
+    taus = np.linspace(0.0, 1.2, 49)
+    iqm, profiles, improvement = {}, {}, []
+    for algo in algos:
+        est = stratified_bootstrap_ci(interquartile_mean, (scores[algo],), rng)
+        iqm[algo] = (float(est.value), float(est.low), float(est.high))
+        prof = stratified_bootstrap_ci(lambda s: score_profile(s, taus), (scores[algo],), rng)
+        profiles[algo] = (prof.value, prof.low, prof.high)
+    if "drl-eg" in scores:
+        for other in algos:
+            if other != "drl-eg":
+                est = stratified_bootstrap_ci(probability_of_improvement,
+                                              (scores["drl-eg"], scores[other]), rng)
+                improvement.append({"other": other, "value": float(est.value),
+                                    "low": float(est.low), "high": float(est.high)})
+    png = aggregate_png(iqm, taus, profiles)
+    return {"tasks": tasks, "runs_per_task": runs, "iqm": iqm, "improvement": improvement,
+            "png_b64": base64.b64encode(png).decode()}
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
@@ -98,7 +133,9 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         if info:
             demo_lines[run.spec["env_id"]] = info["expert_return_mean"]
             demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
-    claims = judge_claims(claim_groups(runs), demo_lines, rng, profile.meaningful)
+    groups = claim_groups(runs)
+    claims = judge_claims(groups, demo_lines, rng, profile.meaningful)
+    aggregate = aggregate_metrics(groups, demo_lines, rng)
     title = f"Fig. 3 replication, profile '{profile.name}'"
     figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title)).decode()
               if bands else None)
@@ -112,7 +149,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     context = {
         "title": title, "profile": profile, "paper_seeds": PAPER_SEEDS_FIG3,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "figure_png_b64": figure, "finals": finals, "claims": claims, "budgets": budgets,
+        "figure_png_b64": figure, "finals": finals, "claims": claims, "aggregate": aggregate, "budgets": budgets,
         "runs": sorted(runs, key=lambda r: (r.spec["env_id"], r.spec["algo"], r.spec["seed"])),
         "failed": outcome.failed, "skipped": outcome.skipped, "demos": list(demos.values()),
         "versions": first.get("versions", provenance.package_versions()),
@@ -136,6 +173,8 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
                   "final_return": r.final_return} for r in context["runs"]],
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
+        "aggregate": None if aggregate is None else {
+            k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
         "git_revisions": context["revisions"],
     }
     _atomic_write(out_dir / "summary.json",

@@ -92,7 +92,7 @@ def test_gmm_threshold_is_the_chosen_quantile_of_demo_densities():
 
 def test_neural_guider_learns_the_mountaincar_rule():
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
-    net = fit_neural_guider(demos, hidden=(32, 32), steps=600, seed=0)
+    net = fit_neural_guider(demos, hidden=(32, 32), steps=1500, seed=0)
     states = torch.tensor([[-0.5, -0.03], [-0.5, 0.03]])
     with torch.no_grad():
         predicted = net(states).numpy()[:, 0]
@@ -118,3 +118,20 @@ def test_gmm_variant_is_registered_and_deterministic():
 def test_unknown_discriminator_is_refused():
     with pytest.raises(ValueError, match="discriminator must be one of"):
         DRLEGConfig(discriminator="kde")
+
+
+def test_kd_tree_guidance_finds_the_brute_force_nearest_demo():
+    from baselines.drl_eg import Guidance
+    from replicate.demos import Demonstrations
+
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(5000, 11)).astype(np.float32)
+    demos = Demonstrations(states, rng.uniform(-1, 1, (5000, 3)).astype(np.float32),
+                           {"expert_return_mean": 1.0})
+    guidance = Guidance(DRLEGConfig(guide_threshold=1e6, guide_noise_std=0.0), demos,
+                        -np.ones(3), np.ones(3), seed=0)
+    for query in rng.normal(size=(200, 11)):
+        distance, index = nearest_demo(guidance.states, query)
+        tree_distance, tree_index = guidance.tree.query(query)
+        assert tree_index == index and tree_distance == pytest.approx(distance)
+        assert np.allclose(guidance.guide(query), demos.actions[index])

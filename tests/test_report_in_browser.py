@@ -11,7 +11,7 @@ from selenium.webdriver.common.by import By
 
 from replicate.cli import main
 
-SECTIONS = ("claims", "figure", "final-returns", "budgets", "demonstrations", "runs",
+SECTIONS = ("claims", "figure", "aggregate", "final-returns", "budgets", "demonstrations", "runs",
             "provenance", "smoke-warning")
 
 
