@@ -142,14 +142,19 @@ class Guidance:
 
     def guide(self, state: np.ndarray) -> np.ndarray | None:
         cfg = self.config
-        uses_nearest = cfg.discriminator == "functional" or cfg.guider == "functional"
-        distance, index = self.tree.query(state) if uses_nearest else (0.0, -1)
+        index = -1
         if cfg.discriminator == "functional":
+            # Only a neighbour within T2 matters, so the search stops at T2: a state far
+            # from every demonstration, the common case, costs almost nothing.
+            distance, index = self.tree.query(
+                state, distance_upper_bound=np.nextafter(cfg.guide_threshold, np.inf))
             guided = functional_discriminator(distance, cfg.guide_threshold)
         else:
             guided = gmm_discriminator(self.gmm, state, self.log_threshold)
         if not guided:
             return None
+        if cfg.guider == "functional" and index < 0:
+            _, index = self.tree.query(state)
         if cfg.guider == "functional":
             return functional_guider(self.actions, index, cfg.guide_noise_std, self.rng,
                                      self.low, self.high)

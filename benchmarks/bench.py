@@ -52,9 +52,11 @@ def bench_env(steps: int) -> dict[str, float]:
 
     from envs import make_env
 
-    raw = env_steps_per_s(lambda: gym.make(ENV_ID), steps)
-    adapter = env_steps_per_s(lambda: make_env(ENV_ID), steps)
-    return {"raw_env_steps_per_s": raw, "adapter_env_steps_per_s": adapter}
+    raw, adapter = [], []
+    for _ in range(3):  # interleaved, best of three: warm-up and noise hit both alike
+        raw.append(env_steps_per_s(lambda: gym.make(ENV_ID), steps))
+        adapter.append(env_steps_per_s(lambda: make_env(ENV_ID), steps))
+    return {"raw_env_steps_per_s": max(raw), "adapter_env_steps_per_s": max(adapter)}
 
 
 def floor_update_s(updates: int, obs_dim: int = 11, act_dim: int = 3) -> float:
@@ -224,11 +226,17 @@ def main() -> None:
     results["harness_sac_steps_per_s"] = harness_run_steps_per_s("sac", steps)
     results["sb3_sac_steps_per_s"] = sb3_sac_steps_per_s(steps)
     print("measuring DRL-EG guidance (1000 and 1M demonstrations) ...", flush=True)
-    always = {"guide_threshold": 1e6}  # the guider answers every step: its cost in full
-    results["drl_eg_1k_steps_per_s"] = harness_run_steps_per_s(
-        "drl-eg", steps, always, synthetic_demos(1000))
-    results["drl_eg_1m_steps_per_s"] = harness_run_steps_per_s(
-        "drl-eg", steps, always, synthetic_demos(1_000_000))
+    # T2 = 0.1: guided near the demonstrations, searched-and-pruned far from them, as in a
+    # real run; T2 = always: the guider answers every step, the KD-tree's worst case
+    near = {"guide_threshold": 0.1}
+    always = {"guide_threshold": 1e6}
+    thousand, million = synthetic_demos(1000), synthetic_demos(1_000_000)
+    results["drl_eg_1k_steps_per_s"] = harness_run_steps_per_s("drl-eg", steps, near, thousand)
+    results["drl_eg_1m_steps_per_s"] = harness_run_steps_per_s("drl-eg", steps, near, million)
+    results["drl_eg_1k_always_steps_per_s"] = harness_run_steps_per_s(
+        "drl-eg", steps, always, thousand)
+    results["drl_eg_1m_always_steps_per_s"] = harness_run_steps_per_s(
+        "drl-eg", steps, always, million)
     print("measuring PPO (harness, SB3) ...", flush=True)
     results["harness_ppo_steps_per_s"] = harness_run_steps_per_s("ppo", 4 * 2048)
     results["sb3_ppo_steps_per_s"] = sb3_ppo_steps_per_s(4 * 2048)
@@ -237,23 +245,30 @@ def main() -> None:
     results["machine_harness_sac_steps_per_s"] = machine_steps_per_s("harness", steps, cores)
     results["machine_sb3_sac_steps_per_s"] = machine_steps_per_s("sb3", steps, cores)
 
-    # the floor as env steps per second: one update plus one raw env step
-    floor_step_s = results["floor_twin_q_update_ms"] / 1e3 + 1 / results["raw_env_steps_per_s"]
-    sac_step_s = 1 / results["harness_sac_steps_per_s"]
+    # the floor of a whole run: its updates at the floor's cost plus its raw env steps
+    floor_run_s = (update_steps * results["floor_twin_q_update_ms"] / 1e3
+                   + steps / results["raw_env_steps_per_s"])
+    sac_run_s = steps / results["harness_sac_steps_per_s"]
+    results["floor_sac_run_steps_per_s"] = steps / floor_run_s
     rows = [
         ("one SAC run / one SB3 SAC run", results["harness_sac_steps_per_s"]
          / results["sb3_sac_steps_per_s"], ">= 1.5"),
         (f"machine, {cores} SAC runs / {cores} SB3 runs", results["machine_harness_sac_steps_per_s"]
          / results["machine_sb3_sac_steps_per_s"], ">= 1.5"),
-        ("SAC time per step / twin-Q floor", sac_step_s / floor_step_s, "<= 1.3"),
+        ("SAC run time / twin-Q floor (updates + raw env steps)", sac_run_s / floor_run_s,
+         "<= 1.3"),
         ("harness V-SAC update / twin-Q floor update", results["harness_v_sac_update_ms"]
          / results["floor_twin_q_update_ms"], "(the paper's SAC has a fifth network)"),
         ("PPO / SB3 PPO", results["harness_ppo_steps_per_s"] / results["sb3_ppo_steps_per_s"],
          ">= 1.5"),
-        ("DRL-EG 1k demos, time per step / SAC", results["harness_sac_steps_per_s"]
+        ("DRL-EG 1k demos, T2 = 0.1, time / SAC", results["harness_sac_steps_per_s"]
          / results["drl_eg_1k_steps_per_s"], "<= 1.05"),
-        ("DRL-EG 1M demos, time per step / SAC", results["harness_sac_steps_per_s"]
+        ("DRL-EG 1M demos, T2 = 0.1, time / SAC", results["harness_sac_steps_per_s"]
          / results["drl_eg_1m_steps_per_s"], "<= 1.05"),
+        ("DRL-EG 1k demos, guided always, time / SAC", results["harness_sac_steps_per_s"]
+         / results["drl_eg_1k_always_steps_per_s"], "<= 1.05"),
+        ("DRL-EG 1M demos, guided always, time / SAC", results["harness_sac_steps_per_s"]
+         / results["drl_eg_1m_always_steps_per_s"], "<= 1.05"),
         ("adapter time per step / raw env", results["raw_env_steps_per_s"]
          / results["adapter_env_steps_per_s"], "<= 1.05"),
     ]
