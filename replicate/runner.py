@@ -186,7 +186,12 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
                                "wall_time_s": round(time.time() - started, 3)}]
         sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
 
-    # the curve is rewritten whole: a resumed algorithm re-emits the points it had
+    # The curve is rewritten whole: a resumed algorithm re-emits the points it had, which
+    # keep the wall time they were first written with.
+    earlier_walls: dict[int, str] = {}
+    if (run_dir / "curve.csv").is_file():
+        with open(run_dir / "curve.csv", newline="") as handle:
+            earlier_walls = {int(row["step"]): row["wall_s"] for row in csv.DictReader(handle)}
     curve_file = open(run_dir / "curve.csv", "w", newline="")
     writer = csv.writer(curve_file)
     writer.writerow(CURVE_COLUMNS)
@@ -198,7 +203,8 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
                          ";".join(f"{r:.6g}" for r in point.returns),
                          f"{point.guided_fraction:.6g}",
                          "" if point.gate_open is None else int(point.gate_open),
-                         f"{earlier_wall + time.time() - started:.3f}"])
+                         earlier_walls.get(point.step,
+                                           f"{earlier_wall + time.time() - started:.3f}")])
         curve_file.flush()
         record_sitting()
 
