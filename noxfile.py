@@ -35,6 +35,14 @@ def replicate_fig3(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(name="replicate-fig4", python=PYTHON)
+def replicate_fig4(session: nox.Session) -> None:
+    """Paired SAC and DRL-EG runs on Ant (same seeds, same initial weights): reports/fig4."""
+    _install(session)
+    session.run("python", "-m", "replicate", "fig4", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 @nox.session(name="ablate-threshold", python=PYTHON)
 def ablate_threshold(session: nox.Session) -> None:
     """Sweep DRL-EG's T2 (and sigma) with optuna; write reports/ablate-threshold/index.html."""

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,ablate-threshold,report,table1,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,fig4,ablate-threshold,report,table1,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -123,6 +123,25 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig3, or reports/smoke/fig3 "
                            "for the smoke profile)")
+
+    fig4 = sub.add_parser(
+        "fig4", help="train what Fig. 4 needs (paired SAC and DRL-EG) and write its report",
+        description="Train SAC and DRL-EG on the same seeds (identical initial weights) on "
+                    "Ant-v5, or --env, and write reports/fig4/index.html: one panel per "
+                    "seed, paired differences, claim 5.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    fig4.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+                      help="budget profile")
+    fig4.add_argument("--env", default="Ant-v5", help="environment (the paper's is Ant-v5)")
+    fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
+    fig4.add_argument("--workers", type=int, default=None,
+                      help="parallel training processes (default: one per core)")
+    fig4.add_argument("--executor", default="local", choices=["local", "ray"],
+                      help="local processes, or tasks on a running Ray cluster (--address)")
+    fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
+    fig4.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig4.add_argument("--out", type=Path, default=None,
+                      help="report directory (default: reports/fig4)")
 
     ablate = sub.add_parser(
         "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
@@ -260,6 +279,16 @@ def _default_out(profile: str) -> Path:
     return Path("reports/smoke/fig3") if profile == "smoke" else Path("reports/fig3")
 
 
+def _cmd_fig4(args: argparse.Namespace) -> int:
+    from replicate.experiments import run_figure4
+
+    report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
+                         store=args.store, out_dir=args.out, workers=args.workers,
+                         executor=args.executor, address=args.address)
+    print(f"report: {report}")
+    return 0
+
+
 def _cmd_ablate(args: argparse.Namespace) -> int:
     from replicate.ablation import run_threshold_ablation
 
@@ -310,7 +339,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3,
+COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3, "fig4": _cmd_fig4,
             "report": _cmd_report, "table1": _cmd_table1, "ablate-threshold": _cmd_ablate,
             "algos": _cmd_algos, "envs": _cmd_envs}
 

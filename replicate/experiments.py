@@ -324,3 +324,47 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
                             f"-- --profile {profile}` to train it)"))
     outcome = GridOutcome(runs, [], None, skipped)
     return write_figure3_report(outcome, chosen, out_dir)
+
+
+FIG4_ENV = "Ant-v5"
+FIG4_SEEDS = 4  # the paper's four fixed seeds
+FIG4_BUDGETS: dict[str, tuple[int, int]] = {  # (env steps, evaluation interval) per profile
+    "smoke": (1200, 400), "quick": (20_000, 1000), "paper": (1_000_000, 10_000)}
+
+
+def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = None
+                 ) -> list[RunSpec]:
+    """Fig. 4: SAC and DRL-EG on the same seeds, hence the same initial weights."""
+    from replicate.demos import default_demo_path
+
+    n_seeds = FIG4_SEEDS if seeds is None else seeds
+    if n_seeds <= 0:
+        raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 4")
+    if not default_demo_path(env_id).is_file():
+        raise HarnessError(f"Fig. 4 needs demonstrations for {env_id}, and none are committed",
+                           f"train its expert (`nox -s experts -- --env {env_id}`), then "
+                           "`nox -s demos`")
+    steps, interval = FIG4_BUDGETS[profile.name]
+    specs = []
+    for algo in ("sac", "drl-eg"):
+        hyper = algorithm_overrides(algo, profile.overrides)
+        if algo == "drl-eg":
+            hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
+        specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
+                  for seed in range(n_seeds)]
+    return specs
+
+
+def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
+                store: Path = Path("runs"), out_dir: Path | None = None,
+                workers: int | None = None,
+                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
+                address: str | None = None) -> Path:
+    """Train what Fig. 4 lacks and write its report; return the report's path."""
+    from replicate.report import write_figure4_report
+
+    chosen = get_profile(profile)
+    outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
+                       executor, address)
+    out_dir = Path(out_dir or ("reports/smoke/fig4" if profile == "smoke" else "reports/fig4"))
+    return write_figure4_report(outcome, chosen, env_id, out_dir)

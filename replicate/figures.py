@@ -88,3 +88,25 @@ def aggregate_png(iqm: dict[str, tuple[float, float, float]], taus: np.ndarray,
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
     return buffer.getvalue()
+
+
+def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, np.ndarray]]]],
+                      title: str) -> bytes:
+    """One panel per seed, one line per algorithm: the paired runs of Fig. 4."""
+    sns.set_theme(style="whitegrid", context="notebook")
+    algos = sorted({algo for _, curves in panels for algo in curves})
+    palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4), squeeze=False)
+    for ax, (seed, curves) in zip(axes[0], panels, strict=True):
+        for algo, (steps, returns) in sorted(curves.items()):
+            ax.plot(steps, returns, color=palette[algo], label=algo, linewidth=1.8)
+        ax.set_title(f"seed {seed}")
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("return")
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()

@@ -180,3 +180,60 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     _atomic_write(out_dir / "summary.json",
                   (json.dumps(summary, indent=2, default=float) + "\n").encode())
     return out_dir / "index.html"
+
+
+def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
+                         out_dir: Path) -> Path:
+    """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
+    paired differences, and claim 5 when the env is the paper's (Ant)."""
+    from replicate.claims import ANT, claim_5
+    from replicate.figures import paired_curves_png
+    from replicate.stats import paired_difference
+
+    rng = np.random.default_rng(REPORT_SEED)
+    by_seed: dict[int, dict[str, Run]] = defaultdict(dict)
+    for run in outcome.runs:
+        by_seed[run.spec["seed"]][run.spec["algo"]] = run
+    pairs = {seed: runs for seed, runs in sorted(by_seed.items()) if len(runs) == 2}
+    rows = []
+    for seed, runs in pairs.items():
+        sac, drl = runs["sac"], runs["drl-eg"]
+        rows.append({"seed": seed, "sac": sac.final_return, "drl": drl.final_return,
+                     "difference": drl.final_return - sac.final_return,
+                     # same seed, same initial weights: the step-0 evaluations must agree
+                     "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
+                     "runs": [sac.path.name, drl.path.name]})
+    paired = None
+    if len(rows) >= 2:
+        estimate, p_value = paired_difference(np.array([r["drl"] for r in rows]),
+                                              np.array([r["sac"] for r in rows]), rng)
+        paired = {"value": float(estimate.value), "low": float(estimate.low),
+                  "high": float(estimate.high), "p_value": p_value}
+    claim = None
+    if env_id == ANT and pairs:
+        claim = claim_5(claim_groups(outcome.runs), {}, rng)
+        if not profile.meaningful:
+            claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"
+    panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy())
+                      for algo, run in runs.items()}) for seed, runs in pairs.items()]
+    title = f"Fig. 4 replication on {env_id}, profile '{profile.name}'"
+    context = {
+        "title": title, "profile": profile, "env_id": env_id, "rows": rows, "paired": paired,
+        "claim": claim, "confidence": CONFIDENCE, "failed": outcome.failed,
+        "figure_png_b64": base64.b64encode(paired_curves_png(panels, title)).decode()
+        if panels else None,
+        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "steps": int(outcome.runs[0].spec["total_steps"]) if outcome.runs else 0,
+        "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
+    }
+    env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
+                             autoescape=jinja2.select_autoescape(["html"]),
+                             undefined=jinja2.StrictUndefined)
+    out_dir = Path(out_dir)
+    _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
+    summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
+               "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
+               "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed]}
+    _atomic_write(out_dir / "summary.json",
+                  (json.dumps(summary, indent=2, default=float) + "\n").encode())
+    return out_dir / "index.html"

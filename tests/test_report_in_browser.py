@@ -34,13 +34,16 @@ def chromium_driver() -> webdriver.Chrome:
 
 @pytest.fixture(scope="module")
 def smoke_reports(smoke_fig3, tmp_path_factory):
-    table1 = tmp_path_factory.mktemp("table1")
+    table1, fig4 = tmp_path_factory.mktemp("table1"), tmp_path_factory.mktemp("fig4")
     assert main(["table1", "--out", str(table1)]) == 0
-    return {"fig3": smoke_fig3[1], "table1": table1}
+    assert main(["fig4", "--profile", "smoke", "--env", "MountainCarContinuous-v0", "--seeds",
+                 "2", "--store", str(smoke_fig3[0]), "--out", str(fig4)]) == 0
+    return {"fig3": smoke_fig3[1], "table1": table1, "fig4": fig4}
 
 
 @pytest.mark.parametrize("report, sections", [
-    ("fig3", SECTIONS), ("table1", ("dimensions", "demonstrations"))])
+    ("fig3", SECTIONS), ("table1", ("dimensions", "demonstrations")),
+    ("fig4", ("figure", "pairs", "claims", "provenance", "smoke-warning"))])
 def test_report_renders_in_chromium(smoke_reports, report, sections):
     driver = chromium_driver()
     try:
@@ -52,7 +55,7 @@ def test_report_renders_in_chromium(smoke_reports, report, sections):
             loaded = driver.execute_script(
                 "return arguments[0].complete && arguments[0].naturalWidth > 0", image)
             assert loaded, f"image {image.get_attribute('alt')!r} did not load"
-        if report == "fig3":
+        if report in ("fig3", "fig4"):
             assert len(images) >= 1
         errors = [entry for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
         assert not errors, errors
