@@ -162,6 +162,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="optuna storage URL (default: SQLite in the run store)")
     ablate.add_argument("--workers", type=int, default=None,
                         help="parallel training processes (default: one per core)")
+    ablate.add_argument("--executor", default="local", choices=["local", "ray"],
+                        help="local processes, or tasks on a running Ray cluster (--address)")
+    ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
     ablate.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
     ablate.add_argument("--out", type=Path, default=None,
                         help="report directory (default: reports/ablate-threshold)")
@@ -295,7 +298,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     report = run_threshold_ablation(profile=args.profile, seeds=args.seeds, store=args.store,
                                     out_dir=args.out, storage=args.storage,
                                     workers=args.workers, thresholds=args.thresholds,
-                                    sigmas=args.sigmas)
+                                    sigmas=args.sigmas, executor=args.executor,
+                                    address=args.address)
     print(f"report: {report}")
     return 0
 
