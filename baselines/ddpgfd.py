@@ -60,8 +60,10 @@ class DDPGfDConfig:
 
     def __post_init__(self) -> None:
         self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
-        if self.n_step < 1 or self.batch_size <= 0 or self.buffer_size <= 0:
-            raise ValueError("n_step, batch_size and buffer_size must be positive")
+        if (self.n_step < 1 or self.batch_size <= 0 or self.buffer_size <= 0
+                or self.gradient_steps < 1):
+            raise ValueError("n_step, batch_size, buffer_size and gradient_steps must be "
+                             "positive")
         if not 0.0 <= self.priority_alpha <= 1.0 or not 0.0 <= self.priority_beta0 <= 1.0:
             raise ValueError("priority_alpha and priority_beta0 must be in [0, 1]")
 
@@ -221,10 +223,10 @@ def train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
         rng = resumed["rng"]
         restore_env_rng(env, resumed["env_rng"])
         restore_env_rng(eval_env, resumed["eval_env_rng"])
+        ctx.on_resume(resumed["step"])
         for point in resumed["curve"]:
             curve.append(point)
             ctx.on_eval(point)
-        ctx.on_resume(resumed["step"])
         ctx.on_steps(resumed["step"])
         obs, _ = env.reset()
     last_checkpoint = start - 1

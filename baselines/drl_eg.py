@@ -146,8 +146,9 @@ class Guidance:
         if cfg.discriminator == "functional":
             # Only a neighbour within T2 matters, so the search stops at T2: a state far
             # from every demonstration, the common case, costs almost nothing.
-            distance, index = self.tree.query(
-                state, distance_upper_bound=np.nextafter(cfg.guide_threshold, np.inf))
+            # the tree's bound is strict and squared: widen it a hair, then test <= T2
+            bound = cfg.guide_threshold * (1 + 1e-9) + 1e-150
+            distance, index = self.tree.query(state, distance_upper_bound=bound)
             guided = functional_discriminator(distance, cfg.guide_threshold)
         else:
             guided = gmm_discriminator(self.gmm, state, self.log_threshold)

@@ -195,11 +195,11 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
         batch_rng = resumed["batch_rng"]
         restore_env_rng(env, resumed["env_rng"])
         restore_env_rng(eval_env, resumed["eval_env_rng"])
+        ctx.on_resume(resumed["step"])
         for point in resumed["curve"]:
             curve.append(point)
             ctx.on_eval(point)
         step, first_rollout, collected = resumed["step"], resumed["rollout"], resumed["collected"]
-        ctx.on_resume(step)
         ctx.on_steps(step)
         raw_obs, _ = env.reset()
     last_checkpoint = step
@@ -222,8 +222,8 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
                 collected[name].append(value)
             raw_obs = raw_next
             step += 1
-            if step % ctx.eval_interval == 0 or step == ctx.total_steps:
-                evaluate_and_record(step)
+            if step % ctx.eval_interval == 0 and step < ctx.total_steps:
+                evaluate_and_record(step)  # the final one comes after the last update
             ctx.on_steps(1)
             if episode_over:
                 if ctx.checkpoint_path is not None and step < ctx.total_steps \
@@ -272,6 +272,7 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), cfg.max_grad_norm)
                 agent.optimizer.step()
+    evaluate_and_record(ctx.total_steps)  # the policy after its last update
     env.close()
     eval_env.close()
 

@@ -50,8 +50,8 @@ class SACConfig:
 
     def __post_init__(self) -> None:
         self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
-        if self.batch_size <= 0 or self.buffer_size <= 0:
-            raise ValueError("batch_size and buffer_size must be positive")
+        if self.batch_size <= 0 or self.buffer_size <= 0 or self.gradient_steps < 1:
+            raise ValueError("batch_size, buffer_size and gradient_steps must be positive")
 
 
 def q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_values: torch.Tensor,
@@ -234,10 +234,10 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         guided_steps, steps_since_eval, best_return = resumed["counters"]
         restore_env_rng(env, resumed["env_rng"])
         restore_env_rng(eval_env, resumed["eval_env_rng"])
+        ctx.on_resume(resumed["step"])
         for point in resumed["curve"]:
             curve.append(point)
             ctx.on_eval(point)
-        ctx.on_resume(resumed["step"])
         ctx.on_steps(resumed["step"])
         obs, _ = env.reset()  # checkpoints are taken where an episode has just ended
     last_checkpoint = start - 1

@@ -134,7 +134,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
             demo_lines[run.spec["env_id"]] = info["expert_return_mean"]
             demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
     groups = claim_groups(runs)
-    claims = judge_claims(groups, demo_lines, rng, profile.meaningful)
+    claims = judge_claims(groups, demo_lines, REPORT_SEED, profile.meaningful)
     aggregate = aggregate_metrics(groups, demo_lines, rng)
     title = f"Fig. 3 replication, profile '{profile.name}'"
     figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title)).decode()

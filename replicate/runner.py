@@ -128,6 +128,12 @@ class RunLockedError(HarnessError):
     pass
 
 
+# Errors of the numbers or the code: resuming would meet them again, so their run's hidden
+# directory is removed. Anything else (a full disk, a lost machine, Ctrl-C) keeps it to resume.
+RECURRING_ERRORS = (FloatingPointError, ValueError, TypeError, KeyError, IndexError,
+                    AttributeError, RuntimeError, HarnessError)
+
+
 def partial_directory(prepared: PreparedRun, store: Path) -> Path:
     return Path(store) / f".partial-{prepared.run_id}"
 
@@ -144,20 +150,24 @@ def execute(prepared: PreparedRun, store: Path,
     store.mkdir(parents=True, exist_ok=True)
     work_dir = partial_directory(prepared, store)
     lock_path = store / f".lock-{prepared.run_id}"
+    locked = RunLockedError(f"run {prepared.run_id} is being trained by another process",
+                            "wait for it, or stop that process")
     with open(lock_path, "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
         except BlockingIOError:
-            raise RunLockedError(f"run {prepared.run_id} is being trained by another process",
-                                 "wait for it, or stop that process") from None
+            raise locked from None
+        if not lock_path.exists() or os.stat(lock_path).st_ino != os.fstat(lock.fileno()).st_ino:
+            raise locked  # our file was unlinked by a finishing holder: someone else's turn
         try:
             if not is_complete(final_dir):  # another process may have finished it
                 work_dir.mkdir(exist_ok=True)
-                try:
-                    _train_into(prepared, work_dir, on_steps, checkpoint_interval)
-                except Exception:
-                    shutil.rmtree(work_dir, ignore_errors=True)  # an error would recur
-                    raise
+                if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
+                    try:
+                        _train_into(prepared, work_dir, on_steps, checkpoint_interval)
+                    except RECURRING_ERRORS:
+                        shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
+                        raise
                 (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
                 if final_dir.exists():  # a stale incomplete directory of the same address
                     shutil.rmtree(final_dir)
@@ -183,7 +193,8 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
 
     def record_sitting() -> None:
         sittings = earlier + [{"started_utc": started_iso, "resumed_from_step": resumed_from,
-                               "wall_time_s": round(time.time() - started, 3)}]
+                               "wall_time_s": round(time.time() - started, 3),
+                               "git_revision": provenance.code_revision()}]
         sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
 
     # The curve is rewritten whole: a resumed algorithm re-emits the points it had, which
@@ -203,8 +214,9 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
                          ";".join(f"{r:.6g}" for r in point.returns),
                          f"{point.guided_fraction:.6g}",
                          "" if point.gate_open is None else int(point.gate_open),
-                         earlier_walls.get(point.step,
-                                           f"{earlier_wall + time.time() - started:.3f}")])
+                         earlier_walls[point.step] if point.step <= resumed_from
+                         and point.step in earlier_walls
+                         else f"{earlier_wall + time.time() - started:.3f}"])
         curve_file.flush()
         record_sitting()
 

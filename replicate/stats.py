@@ -122,7 +122,7 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
 def score_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
     """Performance profile: for each tau, the fraction of runs scoring above tau, averaged
     over tasks."""
-    scores = np.asarray(scores, dtype=float)
+    scores = _as_matrix(scores)
     above = scores[None, :, :] > np.asarray(taus, dtype=float)[:, None, None]
     return above.mean(axis=1).mean(axis=1)
 

@@ -78,9 +78,9 @@ def test_claim_5_pairs_seeds():
 
 
 def test_missing_runs_and_meaningless_profiles_are_not_judged():
-    ledger = judge_claims({}, {}, rng(), meaningful=True)
+    ledger = judge_claims({}, {}, 0, meaningful=True)
     assert [c["id"] for c in ledger] == [1, 2, 3, 4, 5]
     assert all(c["verdict"].startswith("not judged: no runs of") for c in ledger)
     groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94])}
-    smoke = judge_claims(groups, {}, rng(), meaningful=False)
+    smoke = judge_claims(groups, {}, 0, meaningful=False)
     assert smoke[0]["verdict"] == "not judged (smoke profile: numbers mean nothing)"

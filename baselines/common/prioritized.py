@@ -94,6 +94,8 @@ class PrioritizedReplayBuffer:
                            terminated: np.ndarray, episode_end: np.ndarray) -> None:
         """Fill the permanent region; call once, before any agent transition."""
         n = len(observations)
+        if n == 0:
+            raise ValueError("no demonstrations to put in the replay buffer")
         if self.size or n >= self.capacity:
             raise ValueError("demonstrations go in first and must leave room for the agent")
         for name, values in (("observations", observations), ("actions", actions),
