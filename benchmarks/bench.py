@@ -25,6 +25,7 @@ import multiprocessing as mp
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +60,8 @@ def bench_env(steps: int) -> dict[str, float]:
     return {"raw_env_steps_per_s": max(raw), "adapter_env_steps_per_s": max(adapter)}
 
 
-def floor_update_s(updates: int, obs_dim: int = 11, act_dim: int = 3) -> float:
-    """Seconds per update of a minimal twin-Q, auto-alpha SAC: nothing but the math."""
+def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]:
+    """One update of a minimal twin-Q, auto-alpha SAC: nothing but the math."""
     from torch import nn
 
     torch.manual_seed(0)
@@ -114,15 +115,11 @@ def floor_update_s(updates: int, obs_dim: int = 11, act_dim: int = 3) -> float:
                             [*q1.parameters(), *q2.parameters()], strict=True):
                 t.lerp_(s, 0.005)
 
-    for _ in range(20):
-        update()
-    start = time.perf_counter()
-    for _ in range(updates):
-        update()
-    return (time.perf_counter() - start) / updates
+    return update
 
 
-def harness_update_s(updates: int) -> float:
+def make_harness_update() -> Callable[[], None]:
+    """One update of the harness's SAC (the paper's V-network version) on a filled buffer."""
     from baselines.common.buffer import ReplayBuffer
     from baselines.sac import SACAgent, SACConfig
 
@@ -130,12 +127,48 @@ def harness_update_s(updates: int) -> float:
     buffer, rng = ReplayBuffer(11, 3, 10_000), np.random.default_rng(0)
     for _ in range(5000):
         buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), 1.0, rng.normal(size=11), False)
+    return lambda: agent.update(buffer.sample(256, rng))
+
+
+def seconds_per_call(fn: Callable[[], None], calls: int) -> float:
     for _ in range(20):
-        agent.update(buffer.sample(256, rng))
+        fn()
     start = time.perf_counter()
-    for _ in range(updates):
-        agent.update(buffer.sample(256, rng))
-    return (time.perf_counter() - start) / updates
+    for _ in range(calls):
+        fn()
+    return (time.perf_counter() - start) / calls
+
+
+def flops_per_call(fn: Callable[[], None]) -> int:
+    """Floating-point operations of one call, forward and backward, as torch counts them."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return counter.get_total_flops()
+
+
+def gemm_gflops(size: int = 256, calls: int = 2000) -> float:
+    """The CPU's matrix-product rate at the update's dominant shape (batch 256, 256 x 256)."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    out = torch.empty(size, size)
+    seconds = seconds_per_call(lambda: torch.mm(a, b, out=out), calls)
+    return 2 * size ** 3 / seconds / 1e9
+
+
+def update_profile(fn: Callable[[], None], calls: int = 200, top: int = 8) -> list[dict]:
+    """Where an update's time goes: the operators with the most self CPU time."""
+    from torch.profiler import ProfilerActivity, profile
+
+    for _ in range(20):
+        fn()
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(calls):
+            fn()
+    events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
+    total = sum(e.self_cpu_time_total for e in events)
+    return [{"op": e.key, "share": round(e.self_cpu_time_total / total, 3),
+             "calls_per_update": round(e.count / calls, 1)} for e in events[:top]]
 
 
 def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None,
@@ -220,8 +253,19 @@ def main() -> None:
     print("measuring env adapters ...", flush=True)
     results.update(bench_env(20_000))
     print("measuring the update floor and the harness's update ...", flush=True)
-    results["floor_twin_q_update_ms"] = 1e3 * floor_update_s(update_steps // 2)
-    results["harness_v_sac_update_ms"] = 1e3 * harness_update_s(update_steps // 2)
+    floor_update, harness_update = make_floor_update(), make_harness_update()
+    results["floor_twin_q_update_ms"] = 1e3 * seconds_per_call(floor_update, update_steps // 2)
+    results["harness_v_sac_update_ms"] = 1e3 * seconds_per_call(harness_update,
+                                                                update_steps // 2)
+    print("measuring the CPU's matrix-product rate and the updates' FLOPs ...", flush=True)
+    results["gemm_256_gflops"] = gemm_gflops()
+    results["floor_update_mflop"] = flops_per_call(floor_update) / 1e6
+    results["harness_update_mflop"] = flops_per_call(harness_update) / 1e6
+    # the time an update's products alone would take at the best rate measured above
+    results["floor_update_flop_ms"] = results["floor_update_mflop"] / results["gemm_256_gflops"]
+    results["harness_update_flop_ms"] = (results["harness_update_mflop"]
+                                         / results["gemm_256_gflops"])
+    profile_rows = update_profile(harness_update)
     print("measuring SAC runs (harness, SB3) ...", flush=True)
     results["harness_sac_steps_per_s"] = harness_run_steps_per_s("sac", steps)
     results["sb3_sac_steps_per_s"] = sb3_sac_steps_per_s(steps)
@@ -250,6 +294,10 @@ def main() -> None:
                    + steps / results["raw_env_steps_per_s"])
     sac_run_s = steps / results["harness_sac_steps_per_s"]
     results["floor_sac_run_steps_per_s"] = steps / floor_run_s
+    # SB3's update cost, from its run time less the raw env time
+    sb3_update_s = (steps / results["sb3_sac_steps_per_s"]
+                    - steps / results["raw_env_steps_per_s"]) / update_steps
+    results["sb3_sac_update_ms_estimated"] = 1e3 * sb3_update_s
     rows = [
         ("one SAC run / one SB3 SAC run", results["harness_sac_steps_per_s"]
          / results["sb3_sac_steps_per_s"], ">= 1.5"),
@@ -259,6 +307,11 @@ def main() -> None:
          "<= 1.3"),
         ("harness V-SAC update / twin-Q floor update", results["harness_v_sac_update_ms"]
          / results["floor_twin_q_update_ms"], "(the paper's SAC has a fifth network)"),
+        ("SB3 SAC update / its FLOPs at the measured GEMM rate",
+         results["sb3_sac_update_ms_estimated"] / results["floor_update_flop_ms"],
+         "(how far any SAC of this size can beat SB3 on this CPU)"),
+        ("harness V-SAC update / its FLOPs at the measured GEMM rate",
+         results["harness_v_sac_update_ms"] / results["harness_update_flop_ms"], "(>= 1 by law)"),
         ("PPO / SB3 PPO", results["harness_ppo_steps_per_s"] / results["sb3_ppo_steps_per_s"],
          ">= 1.5"),
         ("DRL-EG 1k demos, T2 = 0.1, time / SAC", results["harness_sac_steps_per_s"]
@@ -283,7 +336,11 @@ def main() -> None:
         "machine": {"platform": platform.platform(), "cpus": cores,
                     "torch": torch.__version__},
         "hopper_steps_per_run": steps, "measurements": results,
-        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows]}, indent=2) + "\n")
+        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
+        "harness_update_profile": profile_rows}, indent=2) + "\n")
+    print("\nwhere the harness's SAC update spends its time (self CPU time):")
+    for row in profile_rows:
+        print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")
     print(f"\nwritten: {args.out}")
 
 
