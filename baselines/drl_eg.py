@@ -75,6 +75,20 @@ def nearest_demo(demo_states: np.ndarray, state: np.ndarray) -> tuple[float, int
     return float(np.sqrt(squared[index])), index
 
 
+def demo_state_spacing(demo_states: np.ndarray) -> float:
+    """Median distance from a demonstration state to its nearest other one.
+
+    Consecutive states of a demonstrated trajectory are about one step apart, so a T2 of this
+    size guides states within about a step of the demonstrations. It sets T2 where the paper
+    gives no value, in the env's own state units (a fixed number is meaningless across an
+    11-dimensional Hopper and a 105-dimensional Ant).
+    """
+    if len(demo_states) < 2:
+        raise ValueError("the spacing of demonstration states needs at least two of them")
+    distances, _ = cKDTree(demo_states).query(demo_states, k=2)
+    return float(np.median(distances[:, 1]))
+
+
 def functional_discriminator(distance: float, threshold: float) -> bool:
     """D(s) of eq. 11: guide when the nearest demonstration state is within T2."""
     return distance <= threshold

@@ -27,8 +27,8 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (DRL_EG_ENV_DEFAULTS, GridOutcome, Profile,
-                                   algorithm_overrides, get_profile, run_grid, stored_runs)
+from replicate.experiments import (GridOutcome, Profile, algorithm_overrides,
+                                   drl_eg_env_defaults, get_profile, run_grid, stored_runs)
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
 from replicate.stats import bootstrap_mean
@@ -62,7 +62,7 @@ def threshold_label(threshold: float) -> str:
 def ablation_specs(profile: Profile, env_id: str, threshold: float, sigma: float,
                    seeds: int) -> list[RunSpec]:
     hyper = algorithm_overrides("drl-eg", profile.overrides)
-    hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
+    hyper.update(drl_eg_env_defaults(env_id))
     hyper.update(guide_threshold=float(threshold), guide_noise_std=float(sigma))
     return [RunSpec("drl-eg", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
                     profile.eval_episodes, hyper) for seed in range(seeds)]

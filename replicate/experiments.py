@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
 from replicate.errors import HarnessError
@@ -71,9 +72,26 @@ PROFILES: dict[str, Profile] = {
 }
 
 # Per-env values of what the paper leaves open (T2 in raw state units, sigma in action units).
+# An env not listed takes T2 from its demonstrations (drl_eg_env_defaults).
 DRL_EG_ENV_DEFAULTS: dict[str, dict[str, float]] = {
     "MountainCarContinuous-v0": {"guide_threshold": 0.05, "guide_noise_std": 0.1},
 }
+DEFAULT_GUIDE_NOISE_STD = 0.1
+
+
+def drl_eg_env_defaults(env_id: str) -> dict[str, float]:
+    """DRL-EG's T2 and sigma for ``env_id``: the table's, else T2 = the median spacing of the
+    env's committed demonstration states (``baselines.drl_eg.demo_state_spacing``), written
+    into the spec as a number so the run records the value it used."""
+    if env_id in DRL_EG_ENV_DEFAULTS:
+        return dict(DRL_EG_ENV_DEFAULTS[env_id])
+    from baselines.drl_eg import demo_state_spacing
+    from replicate.demos import default_demo_path, load_demos
+
+    demos = load_demos(default_demo_path(env_id), env_id)
+    spacing = demo_state_spacing(demos.observations.astype(np.float64))
+    return {"guide_threshold": float(f"{spacing:.4g}"),
+            "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
 
 FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
 
@@ -112,7 +130,7 @@ def figure3_grid(profile: Profile, seeds: int | None = None
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
-                hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
+                hyper.update(drl_eg_env_defaults(env_id))
             for seed in range(n_seeds):
                 specs.append(RunSpec(algo=algo, env_id=env_id, seed=seed,
                                      total_steps=profile.steps[env_id],
@@ -349,7 +367,7 @@ def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = N
     for algo in ("sac", "drl-eg"):
         hyper = algorithm_overrides(algo, profile.overrides)
         if algo == "drl-eg":
-            hyper.update(DRL_EG_ENV_DEFAULTS.get(env_id, {}))
+            hyper.update(drl_eg_env_defaults(env_id))
         specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
                   for seed in range(n_seeds)]
     return specs

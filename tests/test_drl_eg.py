@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.drl_eg import (DRLEGConfig, fit_gmm, fit_neural_guider,
+from baselines.drl_eg import (DRLEGConfig, demo_state_spacing, fit_gmm, fit_neural_guider,
                               functional_discriminator, functional_guider,
                               gmm_discriminator, nearest_demo)
 from replicate.demos import default_demo_path, load_demos
@@ -35,6 +35,32 @@ def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
     clipped = np.stack([functional_guider(demo_actions, 1, 0.5, rng, low, high)
                         for _ in range(200)])
     assert clipped.max() <= 1.0 and clipped.min() >= -1.0
+
+
+def test_demo_state_spacing_is_the_median_nearest_neighbour_distance():
+    states = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [3.0, 4.0]])
+    # nearest other: 0->1 (1), 1->0 (1), 2->1 (2), 3->2 (4): median of [1, 1, 2, 4] = 1.5
+    assert demo_state_spacing(states) == pytest.approx(1.5)
+    with pytest.raises(ValueError):
+        demo_state_spacing(states[:1])
+
+
+def test_envs_without_a_chosen_t2_take_it_from_their_demonstrations(monkeypatch, tmp_path):
+    from replicate import demos as demos_module
+    from replicate import experiments
+
+    assert experiments.drl_eg_env_defaults(MOUNTAINCAR) == \
+        experiments.DRL_EG_ENV_DEFAULTS[MOUNTAINCAR]
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    monkeypatch.delitem(experiments.DRL_EG_ENV_DEFAULTS, MOUNTAINCAR)
+    chosen = experiments.drl_eg_env_defaults(MOUNTAINCAR)
+    spacing = demo_state_spacing(demos.observations.astype(np.float64))
+    assert chosen["guide_threshold"] == pytest.approx(spacing, rel=1e-3)
+    assert 0 < chosen["guide_threshold"] < 0.05  # a MountainCar step moves far less than 0.05
+    missing = tmp_path / "none.npz"
+    monkeypatch.setattr(demos_module, "default_demo_path", lambda env_id: missing)
+    with pytest.raises(Exception, match="none.npz"):
+        experiments.drl_eg_env_defaults(MOUNTAINCAR)
 
 
 def test_config_rejects_negative_threshold():
