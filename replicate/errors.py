@@ -11,6 +11,10 @@ class HarnessError(Exception):
         self.problem = problem
         self.fix = fix
 
+    def __reduce__(self):
+        # rebuilt from (problem, fix), so it crosses a process pool intact
+        return self.__class__, (self.problem, self.fix)
+
 
 class DemoError(HarnessError):
     """A demonstration file that cannot be used."""

@@ -148,12 +148,29 @@ class GridOutcome:
     skipped: list[tuple[str, str, str]] = field(default_factory=list)  # (env, algo, reason)
 
 
-def _worker(prepared: PreparedRun, store: str, progress: Any, checkpoint_interval: int) -> str:
-    """Train one run in a worker process, posting step counts to ``progress``."""
+ORPHANED_EXIT_CODE = 3
+
+
+_progress: Any = None  # a worker's end of the step-count queue, set when the worker starts
+
+
+def _init_worker(progress: Any) -> None:
+    global _progress
+    _progress = progress
+
+
+def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
+    """Train one run in a worker process, posting step counts to the progress queue."""
+    progress = _progress
     pending = 0
+    parent = os.getppid()
 
     def on_steps(n: int) -> None:
         nonlocal pending
+        if os.getppid() != parent:
+            # The figure's process is gone (killed): stop as a kill would, leaving the last
+            # checkpoint for the next invocation, instead of training on unseen and unowned.
+            os._exit(ORPHANED_EXIT_CODE)
         pending += n
         if pending >= 250:
             progress.put(pending)
@@ -221,12 +238,14 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     failed: list[tuple[str, str]] = []
     if missing:
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
-        with ctx.Manager() as manager, tqdm(total=total_steps, unit="step", dynamic_ncols=True,
-                                            mininterval=1.0, desc="training") as bar:
-            progress = manager.Queue()
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        # a plain queue handed over at worker start: no manager process to outlive a kill
+        progress = ctx.Queue()
+        with tqdm(total=total_steps, unit="step", dynamic_ncols=True, mininterval=1.0,
+                  desc="training") as bar:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                     initializer=_init_worker, initargs=(progress,)) as pool:
                 futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), progress, checkpoint_interval): p
+                    pool.submit(_worker, p, str(store), checkpoint_interval): p
                     for p in missing}
                 pending = set(futures)
                 done_count = 0
@@ -247,6 +266,11 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                     bar.set_postfix_str(f"runs done {done_count}/{len(missing)}, "
                                         f"running {min(workers, len(pending))}, "
                                         f"failed {len(failed)}", refresh=False)
+            try:  # what the last workers posted as they finished
+                while True:
+                    bar.update(progress.get(timeout=0.1))
+            except queue.Empty:
+                pass
     runs = [load_run(p.directory(store)) for p in prepared if is_complete(p.directory(store))]
     return GridOutcome(runs, failed, time.time() - started)
 
