@@ -126,8 +126,12 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
         "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}",
         "git_revision": provenance.git_revision(),
     }
+    # half precision halves the committed file; demonstrations are rolled out from these
+    # rounded weights, so the files and the returns they record agree
+    metadata["weights_dtype"] = "float16"
+    half = {name: (t.half() if t.is_floating_point() else t) for name, t in best["policy"].items()}
     out = expert_path(env_id)
-    save_checkpoint(out, {"policy": best["policy"], "metadata": metadata})
+    save_checkpoint(out, {"policy": half, "metadata": metadata})
     return out
 
 
@@ -148,7 +152,8 @@ class ExpertPolicy:
                                          space.low, space.high,
                                          tuple(self.metadata["hidden_sizes"]))
         env.close()
-        self.policy.load_state_dict(saved["policy"])
+        self.policy.load_state_dict({name: (t.float() if t.is_floating_point() else t)
+                                     for name, t in saved["policy"].items()})
         self.policy.eval()
 
     @torch.no_grad()

@@ -1,6 +1,7 @@
 import json
 
 import numpy as np
+import torch
 import pytest
 
 from replicate import experts
@@ -28,6 +29,13 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
     assert meta["steps_trained"] == 300 and meta["budget_steps"] == 300
     assert meta["best_eval_return"] == pytest.approx(max(r for _, r in meta["curve"]), abs=1e-3)
     assert not (root / "Hopper-v5" / "checkpoint.pt").exists()  # finished runs drop the buffer
+    # the committed file holds half-precision weights; the policy acts as those weights do
+    saved = torch.load(path, weights_only=True)
+    assert meta["weights_dtype"] == "float16"
+    assert all(t.dtype == torch.float16 for t in saved["policy"].values() if t.is_floating_point())
+    best = torch.load(root / "Hopper-v5" / "best_policy.pt", weights_only=True)["policy"]
+    assert all(torch.equal(p.data, best[name].half().float())
+               for name, p in policy.policy.state_dict().items() if p.is_floating_point())
 
     demos = make_demos(ENV, n_pairs=50, seed=0)
     assert demos.metadata["expert_episodes"] >= 10 and demos.metadata["expert_algo"] == "sac"
