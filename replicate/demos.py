@@ -266,7 +266,8 @@ def make_demos(env_id: str, n_pairs: int = 1000, seed: int = 0) -> Demonstration
     meta = expert.metadata
     description = (f"deterministic policy of the harness's {meta['algo'].upper()} expert for "
                    f"{meta['env_id']} (best evaluation {meta['best_eval_return']:.1f} at step "
-                   f"{meta['best_step']:,} of {meta['steps_trained']:,} trained)")
+                   f"{meta['best_step']:,}; {meta['steps_trained']:,} env steps trained of a "
+                   f"{meta['budget_steps']:,}-step budget; published SAC experts train 1M)")
     extra = {"expert_algo": meta["algo"], "expert_env_id": meta["env_id"],
              "expert_steps_trained": meta["steps_trained"], "expert_budget": meta["budget_steps"],
              "expert_file_command": meta["command"]}

@@ -59,7 +59,7 @@ PROFILES: dict[str, Profile] = {
         "quick", steps={"MountainCarContinuous-v0": 20_000},
         eval_interval={"MountainCarContinuous-v0": 1000}, eval_episodes=5, seeds=4,
         summary="reduced budget and seeds with the paper's networks and hyperparameters; "
-                "MountainCar only until the MuJoCo experts exist"),
+                "MountainCar only: a MuJoCo cell alone costs hours of CPU per seed"),
     "paper": Profile(
         "paper", steps={"MountainCarContinuous-v0": 100_000, **{
             env_id: 1_000_000 for env_id in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5",
