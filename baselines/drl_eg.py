@@ -90,8 +90,13 @@ def demo_state_spacing(demo_states: np.ndarray) -> float:
 
 
 def functional_discriminator(distance: float, threshold: float) -> bool:
-    """D(s) of eq. 11: guide when the nearest demonstration state is within T2."""
-    return distance <= threshold
+    """D(s) of eq. 11: guide when the nearest demonstration state is within T2.
+
+    T2 = 0 switches guidance off. Read literally, eq. 11 would still guide a state identical
+    to a demonstration state, and such states occur: MountainCar's left wall (-1.2, 0),
+    where the rule's episodes and an untrained agent both come to rest.
+    """
+    return threshold > 0 and distance <= threshold
 
 
 def functional_guider(demo_actions: np.ndarray, index: int, noise_std: float,
@@ -157,7 +162,9 @@ class Guidance:
     def guide(self, state: np.ndarray) -> np.ndarray | None:
         cfg = self.config
         index = -1
-        if cfg.discriminator == "functional":
+        if cfg.discriminator == "functional" and cfg.guide_threshold == 0:
+            guided = False  # guidance off (see functional_discriminator)
+        elif cfg.discriminator == "functional":
             # Only a neighbour within T2 matters, so the search stops at T2: a state far
             # from every demonstration, the common case, costs almost nothing.
             # the tree's bound is strict and squared: widen it a hair, then test <= T2

@@ -4,7 +4,7 @@ The paper gives no value for the discriminator's threshold T2 or the guider's no
 This sweep trains DRL-EG over a grid of them with optuna's GridSampler, every trial being
 the same seeds and budget as the Fig. 3 profile, and reports final return and area under
 the curve against T2 with bootstrap CIs. Two ends of the grid are checks as much as
-settings: T2 = 0 guides nowhere, so its runs must equal SAC's run for run; a huge T2
+settings: T2 = 0 switches guidance off, so its runs must equal SAC's run for run; a huge T2
 guides every step while the gate is open.
 
 Trials go through the run store, so a sweep that is stopped resumes where it stopped, and
@@ -29,7 +29,7 @@ import numpy as np
 from replicate.errors import HarnessError
 from replicate.experiments import (GridOutcome, Profile, algorithm_overrides,
                                    drl_eg_env_defaults, get_profile, run_grid, stored_runs)
-from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
+from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
 from replicate.stats import bootstrap_mean
 
@@ -55,7 +55,7 @@ class Cell:
 
 def threshold_label(threshold: float) -> str:
     if threshold == 0:
-        return "0 (never)"
+        return "0 (off)"
     return "always" if threshold >= ALWAYS else f"{threshold:g}"
 
 
@@ -109,6 +109,11 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     out_dir = Path(out_dir or ("reports/smoke/ablate-threshold" if profile == "smoke"
                                else "reports/ablate-threshold"))
 
+    for threshold in grid_t2:  # input errors (demonstrations, values) surface before training
+        for sigma in grid_sigma:
+            for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds):
+                prepare(spec)
+
     # SAC on the same seeds: what T2 = 0 must reproduce exactly.
     sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
                            checkpoint_interval, executor, address)
@@ -136,10 +141,14 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                                              "guide_noise_std": grid_sigma}, seed=0))
     done = {(t.params["guide_threshold"], t.params["guide_noise_std"])
             for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE}
-    remaining = len(grid_t2) * len(grid_sigma) - len(done & {(t, s) for t in grid_t2
-                                                               for s in grid_sigma})
+    remaining = [(t, s) for t in grid_t2 for s in grid_sigma if (t, s) not in done]
+    # The grid sampler counts a failed trial's point as visited; enqueueing every point not
+    # completed makes a sweep that was stopped or failed finish its grid when run again.
+    for threshold, sigma in remaining:
+        study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma},
+                            skip_if_exists=False)
     if remaining:
-        study.optimize(objective, n_trials=remaining)
+        study.optimize(objective, n_trials=len(remaining), catch=(HarnessError,))
 
     # The report reads the run store, not the study: every number traces to run directories.
     cells = []

@@ -20,6 +20,20 @@ def test_discriminator_guides_at_and_below_threshold_only():
     assert functional_discriminator(1.0, threshold=1.0)
     assert functional_discriminator(0.3, threshold=1.0)
     assert not functional_discriminator(1.0, threshold=0.99)
+    # T2 = 0 is "off", even for a state identical to a demonstration state
+    assert not functional_discriminator(0.0, threshold=0.0)
+
+
+def test_zero_threshold_does_not_guide_a_state_equal_to_a_demonstration_state():
+    from baselines.drl_eg import Guidance
+
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    wall = demos.observations[0].copy()
+    config = DRLEGConfig(guide_threshold=0.0)
+    guidance = Guidance(config, demos, np.array([-1.0]), np.array([1.0]), seed=0)
+    assert guidance.guide(wall) is None
+    assert Guidance(DRLEGConfig(guide_threshold=1e-9), demos, np.array([-1.0]),
+                    np.array([1.0]), seed=0).guide(wall) is not None
 
 
 def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
