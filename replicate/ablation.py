@@ -141,9 +141,12 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                                              "guide_noise_std": grid_sigma}, seed=0))
     done = {(t.params["guide_threshold"], t.params["guide_noise_std"])
             for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE}
-    remaining = [(t, s) for t in grid_t2 for s in grid_sigma if (t, s) not in done]
-    # The grid sampler counts a failed trial's point as visited; enqueueing every point not
-    # completed makes a sweep that was stopped or failed finish its grid when run again.
+    remaining = [(t, s) for t in grid_t2 for s in grid_sigma if (t, s) not in done
+                 or len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
+                 < n_seeds]
+    # The grid sampler counts a failed trial's point as visited, and the store, not the
+    # study, is the record; enqueueing every point the store lacks makes a sweep that was
+    # stopped, failed or pruned of runs finish its grid when run again.
     for threshold, sigma in remaining:
         study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma},
                             skip_if_exists=False)
