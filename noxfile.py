@@ -70,7 +70,7 @@ def replicate_table1(session: nox.Session) -> None:
 
 @nox.session(python=PYTHON)
 def report(session: nox.Session) -> None:
-    """Rebuild reports/fig3 from the run store alone (nothing is trained)."""
+    """Rebuild every report from the run store alone (nothing is trained)."""
     _install(session)
     session.run("python", "-m", "replicate", "report", *session.posargs,
                 env={"MUJOCO_GL": "disable"})

@@ -256,3 +256,36 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
                "failed": [{"run_id": i, "reason": why} for i, why in failed]}
     _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
     return out_dir / "index.html"
+
+
+def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"),
+                               out_dir: Path | None = None, env_id: str = ABLATION_ENV,
+                               storage: str | None = None) -> Path | None:
+    """Write the ablation report from the store alone: every (T2, sigma) point whose DRL-EG
+    runs at the profile's budget are there, over the seeds found. Returns None, writing
+    nothing, when the store holds none (a committed report stays)."""
+    from replicate.runner import completed_runs
+
+    chosen = get_profile(profile)
+    store = Path(store)
+    points: dict[tuple[float, float], int] = {}
+    for run in completed_runs(store):
+        spec = run.spec
+        if (spec["algo"] == "drl-eg" and spec["env_id"] == env_id
+                and spec["total_steps"] == chosen.steps.get(env_id)):
+            key = (spec["hyperparameters"]["guide_threshold"],
+                   spec["hyperparameters"]["guide_noise_std"])
+            points[key] = max(points.get(key, 0), spec["seed"] + 1)
+    n_seeds = max(points.values(), default=0)
+    cells = [Cell(t, s, stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
+             for t, s in sorted(points)]
+    cells = [c for c in cells if c.runs]  # runs of other settings than the sweep's own
+    if not cells:
+        return None
+    sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store), [], None)
+    storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
+    out_dir = Path(out_dir or ("reports/smoke/ablate-threshold" if profile == "smoke"
+                               else "reports/ablate-threshold"))
+    return write_ablation_report(cells, sac_outcome, chosen, env_id,
+                                 f"ablate-threshold-{profile}-{env_id}-s{n_seeds}", storage, [],
+                                 out_dir)

@@ -171,8 +171,10 @@ def _build_parser() -> argparse.ArgumentParser:
 
     report = sub.add_parser(
         "report", help="rebuild reports from the run store without training",
-        description="Rebuild the Fig. 3 report of a profile from the runs already in the "
-                    "store; nothing is trained, and missing runs are listed in the report.",
+        description="Rebuild every report of a profile (Fig. 3, Fig. 4, the threshold "
+                    "ablation, Table 1) from the runs already in the store; nothing is trained. "
+                    "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
+                    "are when the store holds none of their runs.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     report.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
                         help="which profile's grid to report")
@@ -180,7 +182,8 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="number of seeds (default: the profile's)")
     report.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
     report.add_argument("--out", type=Path, default=None,
-                        help="report directory (default: as for fig3)")
+                        help="parent directory of the reports (default: reports/, or "
+                             "reports/smoke/ for the smoke profile)")
 
     table1 = sub.add_parser(
         "table1", help="write Table 1 (env dims, paper beside harness, demonstrations)",
@@ -305,11 +308,26 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from replicate.experiments import rebuild_figure3
+    from replicate.ablation import rebuild_threshold_ablation
+    from replicate.demos import default_demo_path
+    from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
+    from replicate.table1 import write_table1_report
 
+    out = args.out
     report = rebuild_figure3(profile=args.profile, seeds=args.seeds, store=args.store,
-                             out_dir=args.out or _default_out(args.profile))
+                             out_dir=out / "fig3" if out else _default_out(args.profile))
     print(f"report: {report}")
+    rebuilt = {
+        "Fig. 4": (rebuild_figure4(args.profile, FIG4_ENV, None, args.store,
+                                   out / "fig4" if out else None)
+                   if default_demo_path(FIG4_ENV).is_file() else None),
+        "threshold ablation": rebuild_threshold_ablation(
+            args.profile, args.store, out / "ablate-threshold" if out else None)}
+    for name, path in rebuilt.items():
+        print(f"report: {path}" if path else
+              f"{name}: no runs of the {args.profile} profile in {args.store}; left as it is")
+    table1 = write_table1_report(out / "table1" if out else Path("reports/table1"))
+    print(f"report: {table1}")
     return 0
 
 

@@ -397,6 +397,20 @@ def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = N
     return specs
 
 
+def rebuild_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
+                    store: Path = Path("runs"), out_dir: Path | None = None) -> Path | None:
+    """Write the Fig. 4 report from the runs already in the store; train nothing. Returns
+    None, writing nothing, when the store holds no run of it (a committed report stays)."""
+    from replicate.report import write_figure4_report
+
+    chosen = get_profile(profile)
+    runs = stored_runs(figure4_grid(chosen, env_id, seeds), Path(store))
+    if not runs:
+        return None
+    out_dir = Path(out_dir or ("reports/smoke/fig4" if profile == "smoke" else "reports/fig4"))
+    return write_figure4_report(GridOutcome(runs, [], None), chosen, env_id, out_dir)
+
+
 def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
                 store: Path = Path("runs"), out_dir: Path | None = None,
                 workers: int | None = None,

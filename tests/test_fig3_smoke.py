@@ -7,7 +7,7 @@ from replicate.cli import main
 from replicate.experiments import FIG3_ALGORITHMS
 
 
-def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys):
+def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
     store, out = smoke_fig3
     html = (out / "index.html").read_text()
     for section in ("claims", "figure", "final-returns", "budgets", "demonstrations", "runs",
@@ -33,17 +33,25 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys):
     assert again["final_returns"] == summary["final_returns"]
     assert again["claims"] == summary["claims"]
 
-    # the report command rebuilds the same numbers from the store alone
-    assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
-    rebuilt = json.loads((out / "summary.json").read_text())
+    # the report command rebuilds the same numbers from the store alone, and every other
+    # report it can: Fig. 3's DRL-EG runs are the ablation's point at the default T2
+    rebuilt_dir = tmp_path / "rebuilt"
+    assert main(["report", "--profile", "smoke", "--store", str(store),
+                 "--out", str(rebuilt_dir)]) == 0
+    rebuilt = json.loads((rebuilt_dir / "fig3" / "summary.json").read_text())
     assert rebuilt["final_returns"] == summary["final_returns"]
-    assert "rebuilt from the run store without training" in (out / "index.html").read_text()
+    assert "rebuilt from the run store without training" in \
+        (rebuilt_dir / "fig3" / "index.html").read_text()
+    ablation = json.loads((rebuilt_dir / "ablate-threshold" / "summary.json").read_text())
+    assert [(r["threshold"], len(r["runs"])) for r in ablation["rows"]] == [(0.05, 2)]
+    assert (rebuilt_dir / "table1" / "index.html").is_file()
+    assert not (rebuilt_dir / "fig4").exists()  # no Fig. 4 runs: nothing written
 
 
 def test_report_from_an_empty_store_lists_every_missing_run(tmp_path):
     out = tmp_path / "report"
     assert main(["report", "--profile", "smoke", "--store", str(tmp_path / "none"),
                  "--out", str(out)]) == 0
-    summary = json.loads((out / "summary.json").read_text())
+    summary = json.loads((out / "fig3" / "summary.json").read_text())
     assert not summary["runs"] and len(summary["skipped"]) == 2 * len(FIG3_ALGORITHMS)
     assert all(c["verdict"].startswith("not judged: no runs of") for c in summary["claims"])
