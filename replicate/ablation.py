@@ -144,14 +144,22 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     remaining = [(t, s) for t in grid_t2 for s in grid_sigma if (t, s) not in done
                  or len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
                  < n_seeds]
-    # The grid sampler counts a failed trial's point as visited, and the store, not the
-    # study, is the record; enqueueing every point the store lacks makes a sweep that was
-    # stopped, failed or pruned of runs finish its grid when run again.
+    # The store, not the study, is the record: every point it lacks is enqueued and asked
+    # for by hand (the grid sampler counts failed and interrupted trials as visited and
+    # stops a study it thinks exhausted). A trial enqueued by an interrupted sitting is
+    # asked for first; its point is one of the grid's too.
+    stale = sum(t.state == optuna.trial.TrialState.WAITING for t in study.trials)
     for threshold, sigma in remaining:
-        study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma},
-                            skip_if_exists=False)
-    if remaining:
-        study.optimize(objective, n_trials=len(remaining), catch=(HarnessError,))
+        study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma})
+    for _ in range(stale + len(remaining)):
+        trial = study.ask()
+        try:
+            value = objective(trial)
+        except HarnessError as exc:
+            print(f"grid point {trial.params} failed: {exc}", flush=True)
+            study.tell(trial, state=optuna.trial.TrialState.FAIL)
+            continue
+        study.tell(trial, value)
 
     # The report reads the run store, not the study: every number traces to run directories.
     cells = []
