@@ -1,8 +1,8 @@
 """The threshold ablation: how much DRL-EG's result depends on T2 (and on sigma).
 
 The paper gives no value for the discriminator's threshold T2 or the guider's noise sigma.
-This sweep trains DRL-EG over a grid of them with optuna's GridSampler, every trial being
-the same seeds and budget as the Fig. 3 profile, and reports final return and area under
+This sweep trains DRL-EG over a grid of them, each point an optuna trial enqueued in one
+study, every trial being the same seeds and budget as the Fig. 3 profile, and reports final return and area under
 the curve against T2 with bootstrap CIs. Two ends of the grid are checks as much as
 settings: T2 = 0 switches guidance off, so its runs must equal SAC's run for run; a huge T2
 guides every step while the gate is open.
@@ -135,24 +135,24 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study_name = f"ablate-threshold-{profile}-{env_id}-s{n_seeds}"
+    # Every trial is enqueued with its grid point, so the sampler never chooses (optuna's
+    # grid sampler would count failed or interrupted trials as visited, and stop the study).
     study = optuna.create_study(
         study_name=study_name, storage=storage, load_if_exists=True, direction="maximize",
-        sampler=optuna.samplers.GridSampler({"guide_threshold": grid_t2,
-                                             "guide_noise_std": grid_sigma}, seed=0))
-    done = {(t.params["guide_threshold"], t.params["guide_noise_std"])
-            for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE}
-    remaining = [(t, s) for t in grid_t2 for s in grid_sigma if (t, s) not in done
-                 or len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
+        sampler=optuna.samplers.RandomSampler(seed=0))
+    # The store, not the study, is the record: a point is done when its runs are stored.
+    remaining = [(t, s) for t in grid_t2 for s in grid_sigma
+                 if len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
                  < n_seeds]
-    # The store, not the study, is the record: every point it lacks is enqueued and asked
-    # for by hand (the grid sampler counts failed and interrupted trials as visited and
-    # stops a study it thinks exhausted). A trial enqueued by an interrupted sitting is
-    # asked for first; its point is one of the grid's too.
-    stale = sum(t.state == optuna.trial.TrialState.WAITING for t in study.trials)
+    waiting = optuna.trial.TrialState.WAITING
+    queued = {tuple(t.system_attrs.get("fixed_params", {}).get(k)
+                    for k in ("guide_threshold", "guide_noise_std"))
+              for t in study.get_trials(deepcopy=False, states=(waiting,))}
     for threshold, sigma in remaining:
-        study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma})
-    for _ in range(stale + len(remaining)):
-        trial = study.ask()
+        if (threshold, sigma) not in queued:  # another worker's queue is shared, not doubled
+            study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma})
+    while study.get_trials(deepcopy=False, states=(waiting,)):
+        trial = study.ask()  # takes the oldest queued point, atomically in the storage
         try:
             value = objective(trial)
         except HarnessError as exc:

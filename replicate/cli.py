@@ -145,8 +145,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     ablate = sub.add_parser(
         "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
-        description="Train DRL-EG over a grid of T2 (and sigma) values with optuna's "
-                    "GridSampler, at the Fig. 3 profile's budget and seeds, and write "
+        description="Train DRL-EG over a grid of T2 (and sigma) values, one optuna trial "
+                    "per point, at the Fig. 3 profile's budget and seeds, and write "
                     "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
                     "workers can share one --storage.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
