@@ -15,6 +15,7 @@ grid; SQLite in the run store is the default.
 from __future__ import annotations
 
 import base64
+import hashlib
 import io
 import json
 import math
@@ -134,7 +135,9 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
         return float(np.mean([r.final_return for r in outcome.runs]))
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study_name = f"ablate-threshold-{profile}-{env_id}-s{n_seeds}"
+    # one study per grid: optuna fixes a parameter's choices within a study
+    grid_id = hashlib.sha256(json.dumps([grid_t2, grid_sigma]).encode()).hexdigest()[:8]
+    study_name = f"ablate-threshold-{profile}-{env_id}-s{n_seeds}-{grid_id}"
     # Every trial is enqueued with its grid point, so the sampler never chooses (optuna's
     # grid sampler would count failed or interrupted trials as visited, and stop the study).
     study = optuna.create_study(

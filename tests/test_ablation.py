@@ -1,3 +1,4 @@
+import hashlib
 import json
 
 import numpy as np
@@ -39,8 +40,10 @@ def test_a_failed_grid_point_is_trained_when_the_sweep_runs_again(tmp_path):
     store, out = tmp_path / "runs", tmp_path / "report"
     store.mkdir()
     grid = {"guide_threshold": [0.0, 1000000.0], "guide_noise_std": [0.1]}
+    grid_id = hashlib.sha256(json.dumps([grid["guide_threshold"],
+                                         grid["guide_noise_std"]]).encode()).hexdigest()[:8]
     study = optuna.create_study(
-        study_name="ablate-threshold-smoke-MountainCarContinuous-v0-s1",
+        study_name=f"ablate-threshold-smoke-MountainCarContinuous-v0-s1-{grid_id}",
         storage=f"sqlite:///{store / 'ablate-threshold.db'}", direction="maximize")
     study.add_trial(optuna.trial.create_trial(  # an earlier sitting failed at T2 = always
         state=optuna.trial.TrialState.FAIL,
