@@ -17,7 +17,10 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     assert "data:image/png;base64," in html and 'id="smoke-warning"' in html
 
 
-def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys):
+def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, monkeypatch):
+    from replicate import demos
+
+    monkeypatch.setattr(demos, "default_demo_path", lambda env_id: tmp_path / "missing.npz")
     code = main(["fig4", "--profile", "smoke", "--env", "HalfCheetah-v5",
                  "--store", str(tmp_path), "--out", str(tmp_path / "out")])
     assert code == 2
