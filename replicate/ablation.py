@@ -2,8 +2,8 @@
 
 The paper gives no value for the discriminator's threshold T2 or the guider's noise sigma.
 This sweep trains DRL-EG over a grid of them, each point an optuna trial enqueued in one
-study, every trial being the same seeds and budget as the Fig. 3 profile, and reports final return and area under
-the curve against T2 with bootstrap CIs. Two ends of the grid are checks as much as
+study and trained on the Fig. 3 profile's seeds and budget, and reports final return and
+area under the curve against T2 with bootstrap CIs. Two ends of the grid are checks as much as
 settings: T2 = 0 switches guidance off, so its runs must equal SAC's run for run; a huge T2
 guides every step while the gate is open.
 
