@@ -162,9 +162,7 @@ class Guidance:
     def guide(self, state: np.ndarray) -> np.ndarray | None:
         cfg = self.config
         index = -1
-        if cfg.discriminator == "functional" and cfg.guide_threshold == 0:
-            guided = False  # guidance off (see functional_discriminator)
-        elif cfg.discriminator == "functional":
+        if cfg.discriminator == "functional":
             # Only a neighbour within T2 matters, so the search stops at T2: a state far
             # from every demonstration, the common case, costs almost nothing.
             # the tree's bound is strict and squared: widen it a hair, then test <= T2

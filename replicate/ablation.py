@@ -29,7 +29,8 @@ import numpy as np
 
 from replicate.errors import HarnessError
 from replicate.experiments import (GridOutcome, Profile, algorithm_overrides,
-                                   drl_eg_env_defaults, get_profile, run_grid, stored_runs)
+                                   drl_eg_env_defaults, get_profile, report_dir, run_grid,
+                                   stored_runs)
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
 from replicate.stats import bootstrap_mean
@@ -107,8 +108,7 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     store = Path(store)
     store.mkdir(parents=True, exist_ok=True)
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
-    out_dir = Path(out_dir or ("reports/smoke/ablate-threshold" if profile == "smoke"
-                               else "reports/ablate-threshold"))
+    out_dir = Path(out_dir or report_dir(profile, "ablate-threshold"))
 
     for threshold in grid_t2:  # input errors (demonstrations, values) surface before training
         for sigma in grid_sigma:
@@ -295,8 +295,7 @@ def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"
         return None
     sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store), [], None)
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
-    out_dir = Path(out_dir or ("reports/smoke/ablate-threshold" if profile == "smoke"
-                               else "reports/ablate-threshold"))
+    out_dir = Path(out_dir or report_dir(profile, "ablate-threshold"))
     return write_ablation_report(cells, sac_outcome, chosen, env_id,
                                  f"ablate-threshold-{profile}-{env_id}-s{n_seeds}", storage, [],
                                  out_dir)

@@ -282,7 +282,9 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
 
 
 def _default_out(profile: str) -> Path:
-    return Path("reports/smoke/fig3") if profile == "smoke" else Path("reports/fig3")
+    from replicate.experiments import report_dir
+
+    return report_dir(profile, "fig3")
 
 
 def _cmd_fig4(args: argparse.Namespace) -> int:

@@ -103,6 +103,12 @@ def get_profile(name: str) -> Profile:
     return PROFILES[name]
 
 
+def report_dir(profile: str, name: str) -> Path:
+    """Where a report goes by default: ``reports/<name>``, or under ``reports/smoke/`` for
+    the smoke profile, whose numbers mean nothing and are never committed."""
+    return Path("reports/smoke" if profile == "smoke" else "reports") / name
+
+
 def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
     """The profile's overrides that ``algo``'s config has (each takes what it knows)."""
     from baselines.registry import get_algorithm
@@ -407,7 +413,7 @@ def rebuild_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int |
     runs = stored_runs(figure4_grid(chosen, env_id, seeds), Path(store))
     if not runs:
         return None
-    out_dir = Path(out_dir or ("reports/smoke/fig4" if profile == "smoke" else "reports/fig4"))
+    out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_figure4_report(GridOutcome(runs, [], None), chosen, env_id, out_dir)
 
 
@@ -422,5 +428,5 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
     chosen = get_profile(profile)
     outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
                        executor, address)
-    out_dir = Path(out_dir or ("reports/smoke/fig4" if profile == "smoke" else "reports/fig4"))
+    out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_figure4_report(outcome, chosen, env_id, out_dir)
