@@ -96,6 +96,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="env steps between evaluations (the best one is kept)")
     expert.add_argument("--checkpoint-interval", type=int, default=10_000,
                         help="env steps between checkpoints (taken at the next episode end)")
+    expert.add_argument("--algo", choices=("sac", "sac-twin-q"), default=None,
+                        help="the trainer: the paper's V-network SAC, or twin-Q SAC with a "
+                             "learned temperature (default: sac, but sac-twin-q for Ant-v5)")
     expert.add_argument("--export-only", action="store_true",
                         help="do not train; export the best policy found so far")
 
@@ -261,7 +264,7 @@ def _cmd_expert(args: argparse.Namespace) -> int:
             path = train_expert(args.env, args.steps, args.root, args.seed,
                                 eval_interval=args.eval_interval,
                                 checkpoint_interval=args.checkpoint_interval,
-                                on_steps=bar.update)
+                                on_steps=bar.update, algo=args.algo)
     import torch
 
     meta = torch.load(path, weights_only=True)["metadata"]

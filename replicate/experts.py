@@ -29,7 +29,15 @@ from replicate import provenance
 from replicate.errors import HarnessError
 
 EXPERT_DATA_DIR = "data/experts"
-EXPERT_ALGO = "sac"
+EXPERT_ALGOS = ("sac", "sac-twin-q")
+# The paper's V-network SAC by default; on Ant it stayed standing for 130k steps (the
+# healthy reward's local optimum), so Ant's expert is the twin-Q, learned-temperature SAC.
+DEFAULT_EXPERT_ALGO: dict[str, str] = {"Ant-v5": "sac-twin-q"}
+
+
+def expert_algo_for(env_id: str) -> str:
+    """The algorithm that trains ``env_id``'s expert unless one is named."""
+    return DEFAULT_EXPERT_ALGO.get(env_id, "sac")
 # A sparse-reward task takes the expert of its dense twin: same dynamics and observations.
 EXPERT_SOURCE: dict[str, str] = {
     "dm_control/cartpole-swingup_sparse-v0": "dm_control/cartpole-swingup-v0",
@@ -59,9 +67,14 @@ def work_dir_for(env_id: str, root: Path) -> Path:
 def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: int = 0,
                  eval_interval: int = 10_000, eval_episodes: int = 5,
                  checkpoint_interval: int = 10_000,
-                 on_steps: Callable[[int], None] = lambda n: None) -> Path:
+                 on_steps: Callable[[int], None] = lambda n: None,
+                 algo: str | None = None) -> Path:
     """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
     env_spec(env_id)
+    algo = algo or expert_algo_for(env_id)
+    if algo not in EXPERT_ALGOS:
+        raise HarnessError(f"experts are trained by {' or '.join(EXPERT_ALGOS)}, not {algo}",
+                           f"pass --algo {EXPERT_ALGOS[0]} or --algo {EXPERT_ALGOS[1]}")
     if env_id in EXPERT_SOURCE:
         raise HarnessError(f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
                            f"train that one: --env {EXPERT_SOURCE[env_id]}")
@@ -75,6 +88,9 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
         # the budget is part of the run (beta-free SAC has no schedule, but keep it honest)
         raise HarnessError(f"{work} holds an expert run with budget {previous['total_steps']}, "
                            f"not {steps}", f"pass --steps {previous['total_steps']} or remove {work}")
+    if previous.get("algo", algo) != algo:
+        raise HarnessError(f"{work} holds an expert run of {previous['algo']}, not {algo}",
+                           f"pass --algo {previous['algo']} or remove {work}")
     earlier_wall = float(previous.get("wall_time_s_before_this_sitting", 0.0))
     earlier_wall += float(previous.get("wall_time_s_this_sitting", 0.0))
     started = time.time()
@@ -84,14 +100,14 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
         curve.append(point)
         best = max(curve, key=lambda p: p.mean_return)
         progress_file.write_text(json.dumps({
-            "env_id": env_id, "algo": EXPERT_ALGO, "seed": seed, "total_steps": steps,
+            "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
             "steps_done": point.step, "best_step": best.step,
             "best_mean_return": best.mean_return,
             "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
             "wall_time_s_before_this_sitting": earlier_wall,
             "wall_time_s_this_sitting": time.time() - started}, indent=1))
 
-    algorithm = get_algorithm(EXPERT_ALGO)
+    algorithm = get_algorithm(algo)
     config = algorithm.make_config({})
     ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
                        eval_episodes=eval_episodes, on_eval=on_eval, on_steps=on_steps,
@@ -112,9 +128,10 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
                            f"train one first: python -m replicate expert --env {env_id}")
     best = torch.load(best_file, weights_only=True)
     progress = json.loads(progress_file.read_text())
-    config = get_algorithm(EXPERT_ALGO).make_config({})
+    algo = progress.get("algo", "sac")
+    config = get_algorithm(algo).make_config({})
     metadata = {
-        "env_id": env_id, "algo": EXPERT_ALGO, "seed": progress["seed"],
+        "env_id": env_id, "algo": algo, "seed": progress["seed"],
         "hidden_sizes": list(config.hidden_sizes),
         "hyperparameters": {k: (list(v) if isinstance(v, tuple) else v)
                             for k, v in dataclasses.asdict(config).items()},
@@ -123,7 +140,8 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
         "wall_time_s": round(progress["wall_time_s_before_this_sitting"]
                              + progress["wall_time_s_this_sitting"], 1),
         "curve": progress["curve"],
-        "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}",
+        "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}"
+                   + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}"),
         "git_revision": provenance.git_revision(),
     }
     # half precision halves the committed file; demonstrations are rolled out from these

@@ -59,3 +59,17 @@ def test_sparse_task_takes_the_dense_twins_expert(expert_dir):
 def test_missing_expert_is_a_clear_error(expert_dir):
     with pytest.raises(DemoError, match="no expert is available yet"):
         make_demos("Walker2d-v5")
+
+
+def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
+    root = expert_dir / "work"
+    path = experts.train_expert(ENV, steps=200, root=root, eval_interval=100, algo="sac-twin-q")
+    policy = experts.ExpertPolicy(ENV, path)
+    assert policy.metadata["algo"] == "sac-twin-q"
+    assert policy.metadata["command"].endswith("--algo sac-twin-q")  # not Hopper's default
+    assert "initial_alpha" in policy.metadata["hyperparameters"]
+    assert np.all(np.isfinite(policy(np.zeros(11))))
+    with pytest.raises(HarnessError, match="expert run of sac-twin-q"):
+        experts.train_expert(ENV, steps=200, root=root, algo="sac")
+    with pytest.raises(HarnessError, match="not ppo"):
+        experts.train_expert(ENV, steps=200, root=root, algo="ppo")

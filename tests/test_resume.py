@@ -52,6 +52,7 @@ def run(algo, env_id, steps, checkpoint_path=None, kill_at=None, **overrides):
 
 @pytest.mark.parametrize("algo, env_id, overrides", [
     ("sac", "Hopper-v5", {}),  # short episodes: several checkpoints before the kill
+    ("sac-twin-q", "Hopper-v5", {"hidden_sizes": (16, 16)}),
     ("drl-eg", MOUNTAINCAR, {"guide_threshold": 0.5}),
     ("ddpgfd", "Hopper-v5", {"hidden_sizes": (16, 16)}),
     # checkpoints fall inside a rollout of 256 steps: the partial rollout is saved too
