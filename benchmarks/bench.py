@@ -10,11 +10,16 @@ gradient step per env step after 1000 steps from the initial policy):
 
 - env: raw Gymnasium env against the harness's adapter, random actions;
 - floor: a bare twin-Q, auto-alpha SAC update in plain PyTorch, the least any SAC can cost;
-- the harness's SAC (the paper's V-network version): its update alone and its training loop;
+- the harness's twin-Q, learned-temperature SAC (``sac-twin-q``, like for like with SB3's SAC)
+  and the paper's V-network SAC (``sac``): their updates alone and their training loops;
 - Stable-Baselines3 SAC with the same hyperparameters;
-- DRL-EG with guidance consulted on every step, with 1000 and with 1,000,000 demonstrations;
+- DRL-EG's guidance: what D(s) and G(s) add to an env step, with 1000 and with 1,000,000
+  demonstrations, and whole DRL-EG runs beside SAC runs;
 - the harness's PPO against SB3's PPO (2048-step rollouts, 10 epochs, minibatch 64, 2x64);
-- the machine: one training process per core at once, harness and SB3.
+- the machine: a four-seed job on one process per core, harness and SB3.
+
+Whole-run speeds move by 5-15% between repetitions on a shared machine, so each is the
+median of ``--repeats`` runs, interleaved so that a slow spell hits every contender.
 """
 
 from __future__ import annotations
@@ -118,12 +123,17 @@ def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]
     return update
 
 
-def make_harness_update() -> Callable[[], None]:
-    """One update of the harness's SAC (the paper's V-network version) on a filled buffer."""
+def make_harness_update(algo: str = "sac") -> Callable[[], None]:
+    """One update of the harness's SAC (``sac``: the paper's V-network version, or
+    ``sac-twin-q``) on a filled buffer."""
     from baselines.common.buffer import ReplayBuffer
     from baselines.sac import SACAgent, SACConfig
+    from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 
-    agent = SACAgent(11, 3, -np.ones(3), np.ones(3), SACConfig(), seed=0)
+    if algo == "sac":
+        agent = SACAgent(11, 3, -np.ones(3), np.ones(3), SACConfig(), seed=0)
+    else:
+        agent = TwinQSACAgent(11, 3, -np.ones(3), np.ones(3), TwinQSACConfig(), seed=0)
     buffer, rng = ReplayBuffer(11, 3, 10_000), np.random.default_rng(0)
     for _ in range(5000):
         buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), 1.0, rng.normal(size=11), False)
@@ -186,15 +196,58 @@ def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None
     return steps / (time.perf_counter() - start)
 
 
-def synthetic_demos(n_pairs: int):
-    """Hopper-shaped demonstrations near the start states (the speed, not the skill, counts)."""
-    from replicate.demos import Demonstrations
+def hopper_demos(n_pairs: int):
+    """The committed Hopper demonstrations, and for more pairs than they hold, copies of their
+    states with small noise: a huge demonstration set along the expert's own trajectory."""
+    from replicate.demos import Demonstrations, default_demo_path, load_demos
 
+    committed = load_demos(default_demo_path(ENV_ID), ENV_ID)
     rng = np.random.default_rng(0)
-    observations = (rng.normal(scale=0.05, size=(n_pairs, 11))
-                    + np.r_[1.25, np.zeros(10)]).astype(np.float32)
-    actions = rng.uniform(-1, 1, size=(n_pairs, 3)).astype(np.float32)
-    return Demonstrations(observations, actions, {"expert_return_mean": 1e9})
+    index = np.arange(n_pairs) % len(committed.observations)
+    jitter = 0.0 if n_pairs <= len(committed.observations) else 0.01
+    observations = committed.observations[index] + rng.normal(
+        scale=jitter, size=(n_pairs, committed.observations.shape[1]))
+    return Demonstrations(observations.astype(np.float32), committed.actions[index],
+                          {"expert_return_mean": 1e9})
+
+
+def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[str, float]:
+    """What DRL-EG adds to an env step: its explorer's choice against SAC's policy action,
+    timed on the same states (those an untrained SAC agent visits, early training's case),
+    with the gate open. Returns microseconds per step and the seconds the index takes to build."""
+    from baselines.drl_eg import DRLEGConfig, Guidance, GuidedExplorer
+    from baselines.sac import SACAgent
+    from envs import make_env
+
+    demos = hopper_demos(n_pairs)
+    config = DRLEGConfig(guide_threshold=threshold)
+    agent = SACAgent(11, 3, -np.ones(3), np.ones(3), config, seed=0)
+    start = time.perf_counter()
+    guidance = Guidance(config, demos, -np.ones(3), np.ones(3), seed=0)
+    build_s = time.perf_counter() - start
+    explorer = GuidedExplorer(agent, guidance, demo_return=1e9)
+    env, visited = make_env(ENV_ID, seed=0), []
+    obs, _ = env.reset(seed=0)
+    for _ in range(states):
+        visited.append(obs)
+        obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    guided = 0
+    times = {"act": [], "choose": []}
+    for _ in range(3):  # interleaved, best of three
+        start = time.perf_counter()
+        for state in visited:
+            agent.act(state)
+        times["act"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        for state in visited:
+            guided += explorer.choose(state)[1]
+        times["choose"].append(time.perf_counter() - start)
+    act_us, choose_us = (1e6 * min(times[k]) / len(visited) for k in ("act", "choose"))
+    return {"index_build_s": build_s, "sac_act_us": act_us, "drl_eg_choose_us": choose_us,
+            "added_us_per_step": choose_us - act_us,
+            "guided_fraction": guided / (3 * len(visited))}
 
 
 def sb3_sac_steps_per_s(steps: int) -> float:
@@ -228,120 +281,160 @@ def _one_process(job: tuple[str, int]) -> float:
     torch.set_num_threads(1)
     if kind == "sb3":
         return sb3_sac_steps_per_s(steps)
-    return harness_run_steps_per_s("sac", steps)
+    return harness_run_steps_per_s(kind, steps)
 
 
-def machine_steps_per_s(kind: str, steps: int, processes: int) -> float:
-    """Total env steps per second of ``processes`` SAC runs at once, one per core."""
+def machine_steps_per_s(kind: str, steps: int, processes: int, runs: int) -> float:
+    """Total env steps per second of a ``runs``-seed SAC job on ``processes`` processes."""
     with mp.get_context("spawn").Pool(processes) as pool:
+        pool.map(_one_process, [(kind, 10)] * processes)  # imports paid before the clock
         start = time.perf_counter()
-        pool.map(_one_process, [(kind, steps)] * processes)
-        return processes * steps / (time.perf_counter() - start)
+        pool.map(_one_process, [(kind, steps)] * runs, chunksize=1)
+        return runs * steps / (time.perf_counter() - start)
+
+
+def median_of(repeats: int, measurements: dict[str, Callable[[], float]]) -> dict[str, float]:
+    """Each measurement's median over ``repeats`` rounds, the contenders interleaved."""
+    values: dict[str, list[float]] = {name: [] for name in measurements}
+    for _ in range(repeats):
+        for name, measure in measurements.items():
+            values[name].append(measure())
+    return {name: float(np.median(v)) for name, v in values.items()}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2500,
                         help="env steps per SAC run (the first 1000 without updates)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="whole-run measurements are the median of this many")
     parser.add_argument("--out", type=Path, default=Path("reports/bench/bench.json"))
     args = parser.parse_args()
+    if args.steps <= WARMUP or args.repeats < 1:
+        parser.error(f"--steps must exceed {WARMUP} (the warm-up) and --repeats be >= 1")
     torch.set_num_threads(1)
-    steps = args.steps
+    steps, repeats = args.steps, args.repeats
     update_steps = steps - WARMUP
     results: dict[str, float] = {}
+    began = time.perf_counter()
 
     print("measuring env adapters ...", flush=True)
     results.update(bench_env(20_000))
-    print("measuring the update floor and the harness's update ...", flush=True)
-    floor_update, harness_update = make_floor_update(), make_harness_update()
-    results["floor_twin_q_update_ms"] = 1e3 * seconds_per_call(floor_update, update_steps // 2)
-    results["harness_v_sac_update_ms"] = 1e3 * seconds_per_call(harness_update,
-                                                                update_steps // 2)
+    print("measuring the update floor and the harness's updates ...", flush=True)
+    floor_update = make_floor_update()
+    v_update, twin_update = make_harness_update("sac"), make_harness_update("sac-twin-q")
+    results.update(median_of(repeats, {
+        "floor_twin_q_update_ms": lambda: 1e3 * seconds_per_call(floor_update, 300),
+        "harness_twin_q_update_ms": lambda: 1e3 * seconds_per_call(twin_update, 300),
+        "harness_v_sac_update_ms": lambda: 1e3 * seconds_per_call(v_update, 300)}))
     print("measuring the CPU's matrix-product rate and the updates' FLOPs ...", flush=True)
     results["gemm_256_gflops"] = gemm_gflops()
-    results["floor_update_mflop"] = flops_per_call(floor_update) / 1e6
-    results["harness_update_mflop"] = flops_per_call(harness_update) / 1e6
-    # the time an update's products alone would take at the best rate measured above
-    results["floor_update_flop_ms"] = results["floor_update_mflop"] / results["gemm_256_gflops"]
-    results["harness_update_flop_ms"] = (results["harness_update_mflop"]
-                                         / results["gemm_256_gflops"])
-    profile_rows = update_profile(harness_update)
-    print("measuring SAC runs (harness, SB3) ...", flush=True)
-    results["harness_sac_steps_per_s"] = harness_run_steps_per_s("sac", steps)
-    results["sb3_sac_steps_per_s"] = sb3_sac_steps_per_s(steps)
+    for name, update in (("floor", floor_update), ("harness_twin_q", twin_update),
+                         ("harness_v_sac", v_update)):
+        results[f"{name}_update_mflop"] = flops_per_call(update) / 1e6
+        # the time the update's products alone would take at the best rate measured above
+        results[f"{name}_update_flop_ms"] = (results[f"{name}_update_mflop"]
+                                             / results["gemm_256_gflops"])
+    profile_rows = update_profile(twin_update)
+    print(f"measuring SAC runs (harness twin-Q, harness V-SAC, SB3; median of {repeats}) ...",
+          flush=True)
+    results.update(median_of(repeats, {
+        "harness_twin_q_sac_steps_per_s": lambda: harness_run_steps_per_s("sac-twin-q", steps),
+        "harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps),
+        "sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps)}))
     print("measuring DRL-EG guidance (1000 and 1M demonstrations) ...", flush=True)
-    # T2 = 0.1: guided near the demonstrations, searched-and-pruned far from them, as in a
-    # real run; T2 = always: the guider answers every step, the KD-tree's worst case
+    # T2 = 0.1: a realistic threshold (Hopper's demonstration spacing is ~0.1); always:
+    # the guider answers every step, the index's worst case
+    for label, pairs in (("1k", 1000), ("1m", 1_000_000)):
+        for mode, threshold in (("near", 0.1), ("always", 1e6)):
+            for key, value in guidance_cost(pairs, threshold).items():
+                results[f"guidance_{label}_{mode}_{key}"] = value
     near = {"guide_threshold": 0.1}
-    always = {"guide_threshold": 1e6}
-    thousand, million = synthetic_demos(1000), synthetic_demos(1_000_000)
-    results["drl_eg_1k_steps_per_s"] = harness_run_steps_per_s("drl-eg", steps, near, thousand)
-    results["drl_eg_1m_steps_per_s"] = harness_run_steps_per_s("drl-eg", steps, near, million)
-    results["drl_eg_1k_always_steps_per_s"] = harness_run_steps_per_s(
-        "drl-eg", steps, always, thousand)
-    results["drl_eg_1m_always_steps_per_s"] = harness_run_steps_per_s(
-        "drl-eg", steps, always, million)
+    results.update(median_of(repeats, {
+        "drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
+            "drl-eg", steps, near, hopper_demos(1000)),
+        "drl_eg_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps)}))
     print("measuring PPO (harness, SB3) ...", flush=True)
-    results["harness_ppo_steps_per_s"] = harness_run_steps_per_s("ppo", 4 * 2048)
-    results["sb3_ppo_steps_per_s"] = sb3_ppo_steps_per_s(4 * 2048)
+    results.update(median_of(repeats, {
+        "harness_ppo_steps_per_s": lambda: harness_run_steps_per_s("ppo", 4 * 2048),
+        "sb3_ppo_steps_per_s": lambda: sb3_ppo_steps_per_s(4 * 2048)}))
     cores = os.cpu_count() or 1
-    print(f"measuring the machine: {cores} SAC runs at once ...", flush=True)
-    results["machine_harness_sac_steps_per_s"] = machine_steps_per_s("harness", steps, cores)
-    results["machine_sb3_sac_steps_per_s"] = machine_steps_per_s("sb3", steps, cores)
+    seeds = max(4, cores)
+    print(f"measuring the machine: {seeds} seeds on {cores} processes ...", flush=True)
+    results.update(median_of(max(1, repeats - 1), {
+        "machine_harness_sac_steps_per_s": lambda: machine_steps_per_s(
+            "sac-twin-q", steps, cores, seeds),
+        "machine_sb3_sac_steps_per_s": lambda: machine_steps_per_s("sb3", steps, cores, seeds)}))
 
     # the floor of a whole run: its updates at the floor's cost plus its raw env steps
     floor_run_s = (update_steps * results["floor_twin_q_update_ms"] / 1e3
                    + steps / results["raw_env_steps_per_s"])
-    sac_run_s = steps / results["harness_sac_steps_per_s"]
+    twin_run_s = steps / results["harness_twin_q_sac_steps_per_s"]
     results["floor_sac_run_steps_per_s"] = steps / floor_run_s
     # SB3's update cost, from its run time less the raw env time
     sb3_update_s = (steps / results["sb3_sac_steps_per_s"]
                     - steps / results["raw_env_steps_per_s"]) / update_steps
     results["sb3_sac_update_ms_estimated"] = 1e3 * sb3_update_s
+    # guidance against the time of a whole SAC env step (its update included)
+    sac_step_us = 1e6 / results["harness_v_sac_steps_per_s"]
+    paper_run_steps = 1_000_000
+
+    def guidance_ratio(label: str, mode: str) -> float:
+        added = results[f"guidance_{label}_{mode}_added_us_per_step"]
+        build_us = 1e6 * results[f"guidance_{label}_{mode}_index_build_s"] / paper_run_steps
+        return (sac_step_us + added + build_us) / sac_step_us
+
     rows = [
-        ("one SAC run / one SB3 SAC run", results["harness_sac_steps_per_s"]
+        ("one twin-Q SAC run / one SB3 SAC run", results["harness_twin_q_sac_steps_per_s"]
          / results["sb3_sac_steps_per_s"], ">= 1.5"),
-        (f"machine, {cores} SAC runs / {cores} SB3 runs", results["machine_harness_sac_steps_per_s"]
-         / results["machine_sb3_sac_steps_per_s"], ">= 1.5"),
-        ("SAC run time / twin-Q floor (updates + raw env steps)", sac_run_s / floor_run_s,
+        ("one paper V-SAC run / one SB3 SAC run", results["harness_v_sac_steps_per_s"]
+         / results["sb3_sac_steps_per_s"], "(five networks against SB3's four)"),
+        (f"machine, {seeds}-seed job on {cores} processes: harness / SB3",
+         results["machine_harness_sac_steps_per_s"] / results["machine_sb3_sac_steps_per_s"],
+         ">= 1.5"),
+        ("twin-Q SAC run time / floor (updates + raw env steps)", twin_run_s / floor_run_s,
          "<= 1.3"),
-        ("harness V-SAC update / twin-Q floor update", results["harness_v_sac_update_ms"]
-         / results["floor_twin_q_update_ms"], "(the paper's SAC has a fifth network)"),
+        ("twin-Q SAC update / floor update", results["harness_twin_q_update_ms"]
+         / results["floor_twin_q_update_ms"], "(same math)"),
+        ("twin-Q SAC update / its FLOPs at the measured GEMM rate",
+         results["harness_twin_q_update_ms"] / results["harness_twin_q_update_flop_ms"],
+         "(>= 1 by law)"),
         ("SB3 SAC update / its FLOPs at the measured GEMM rate",
          results["sb3_sac_update_ms_estimated"] / results["floor_update_flop_ms"],
-         "(how far any SAC of this size can beat SB3 on this CPU)"),
-        ("harness V-SAC update / its FLOPs at the measured GEMM rate",
-         results["harness_v_sac_update_ms"] / results["harness_update_flop_ms"], "(>= 1 by law)"),
+         "(SB3's distance from the hardware)"),
         ("PPO / SB3 PPO", results["harness_ppo_steps_per_s"] / results["sb3_ppo_steps_per_s"],
          ">= 1.5"),
-        ("DRL-EG 1k demos, T2 = 0.1, time / SAC", results["harness_sac_steps_per_s"]
-         / results["drl_eg_1k_steps_per_s"], "<= 1.05"),
-        ("DRL-EG 1M demos, T2 = 0.1, time / SAC", results["harness_sac_steps_per_s"]
-         / results["drl_eg_1m_steps_per_s"], "<= 1.05"),
-        ("DRL-EG 1k demos, guided always, time / SAC", results["harness_sac_steps_per_s"]
-         / results["drl_eg_1k_always_steps_per_s"], "<= 1.05"),
-        ("DRL-EG 1M demos, guided always, time / SAC", results["harness_sac_steps_per_s"]
-         / results["drl_eg_1m_always_steps_per_s"], "<= 1.05"),
+        ("DRL-EG step / SAC step, 1000 demos, T2 = 0.1", guidance_ratio("1k", "near"), "<= 1.05"),
+        ("DRL-EG step / SAC step, 1M demos, T2 = 0.1", guidance_ratio("1m", "near"), "<= 1.05"),
+        ("DRL-EG step / SAC step, 1000 demos, guided always", guidance_ratio("1k", "always"),
+         "(guided steps skip the policy)"),
+        ("DRL-EG step / SAC step, 1M demos, guided always", guidance_ratio("1m", "always"),
+         "(the index's worst case)"),
+        ("whole DRL-EG run time / SAC run, 1000 demos, T2 = 0.1",
+         results["drl_eg_sac_steps_per_s"] / results["drl_eg_1k_steps_per_s"],
+         "(different trajectories; noisy)"),
         ("adapter time per step / raw env", results["raw_env_steps_per_s"]
          / results["adapter_env_steps_per_s"], "<= 1.05"),
     ]
-    print(f"\n{'ratio':52} {'measured':>9}  target")
+    results["bench_wall_s"] = time.perf_counter() - began
+    print(f"\n{'ratio':58} {'measured':>9}  target")
     for name, value, target in rows:
-        print(f"{name:52} {value:9.3f}  {target}")
+        print(f"{name:58} {value:9.3f}  {target}")
     print("\nraw measurements:")
     for name, value in results.items():
-        print(f"  {name:40} {value:12.2f}")
+        print(f"  {name:52} {value:12.3f}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({
         "machine": {"platform": platform.platform(), "cpus": cores,
                     "torch": torch.__version__},
-        "hopper_steps_per_run": steps, "measurements": results,
+        "command": "nox -s bench", "hopper_steps_per_run": steps, "repeats": repeats,
+        "measurements": results,
         "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
-        "harness_update_profile": profile_rows}, indent=2) + "\n")
-    print("\nwhere the harness's SAC update spends its time (self CPU time):")
+        "twin_q_update_profile": profile_rows}, indent=2) + "\n")
+    print("\nwhere the harness's twin-Q SAC update spends its time (self CPU time):")
     for row in profile_rows:
         print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")
-    print(f"\nwritten: {args.out}")
+    print(f"\nwritten: {args.out} ({results['bench_wall_s']:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -319,10 +319,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from replicate.table1 import write_table1_report
 
     out = args.out
-    report = rebuild_figure3(profile=args.profile, seeds=args.seeds, store=args.store,
-                             out_dir=out / "fig3" if out else _default_out(args.profile))
-    print(f"report: {report}")
     rebuilt = {
+        "Fig. 3": rebuild_figure3(profile=args.profile, seeds=args.seeds, store=args.store,
+                                  out_dir=out / "fig3" if out else _default_out(args.profile)),
         "Fig. 4": (rebuild_figure4(args.profile, FIG4_ENV, None, args.store,
                                    out / "fig4" if out else None)
                    if default_demo_path(FIG4_ENV).is_file() else None),

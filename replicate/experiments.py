@@ -354,9 +354,12 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
 
 
 def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
-                    store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")) -> Path:
+                    store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")
+                    ) -> Path | None:
     """Write the Fig. 3 report from the runs already in the store; train nothing. Cells of
-    the grid whose runs are missing are listed in the report."""
+    the grid whose runs are missing are listed in the report. With none of the grid's runs
+    in the store, nothing is written (a committed report is not replaced by an empty one)
+    and None is returned."""
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
@@ -370,6 +373,8 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
             skipped.append((spec.env_id, spec.algo,
                             f"seed {spec.seed} not in {store} yet (run `nox -s replicate-fig3 "
                             f"-- --profile {profile}` to train it)"))
+    if not runs:
+        return None
     outcome = GridOutcome(runs, [], None, skipped)
     return write_figure3_report(outcome, chosen, out_dir)
 
