@@ -15,7 +15,11 @@ class RunningMeanStd:
 
     def update(self, batch: np.ndarray) -> None:
         batch = np.asarray(batch, dtype=np.float64).reshape(-1, *self.mean.shape)
-        batch_mean, batch_var, n = batch.mean(axis=0), batch.var(axis=0), batch.shape[0]
+        n = batch.shape[0]
+        if n == 1:  # one env step: its mean is itself and its variance 0, exactly
+            batch_mean, batch_var = batch[0], np.zeros_like(self.var)
+        else:
+            batch_mean, batch_var = batch.mean(axis=0), batch.var(axis=0)
         delta = batch_mean - self.mean
         total = self.count + n
         self.mean = self.mean + delta * n / total
