@@ -73,3 +73,32 @@ def test_same_seed_same_ppo_curve(algo):
     second, _ = train_tiny(algo, seed=2, steps=400, **PPO_TINY, **extra)
     assert [p.returns for p in first] == [p.returns for p in second]
     assert [p.step for p in first] == [0, 200, 400]
+
+
+def test_fast_log_density_is_bitwise_torch_normal():
+    from baselines.ppo import normal_log_prob
+
+    g = torch.Generator().manual_seed(0)
+    mean, value = torch.randn(7, 3, generator=g), torch.randn(7, 3, generator=g)
+    std = torch.rand(3, generator=g).add(0.1).expand(7, 3)
+    reference = torch.distributions.Normal(mean, std).log_prob(value)
+    assert torch.equal(normal_log_prob(value, mean, std), reference)
+
+
+def test_one_observation_statistics_update_is_bitwise_the_batch_formula():
+    from baselines.common.normalization import RunningMeanStd
+
+    rng = np.random.default_rng(0)
+    fast, batch_path = RunningMeanStd((4,)), RunningMeanStd((4,))
+    for _ in range(50):
+        x = rng.normal(size=4) * 3 + 1
+        fast.update(x)
+        # the general path on a batch of one, as the code did before the shortcut
+        b = x.reshape(1, 4)
+        mean, var, n = b.mean(axis=0), b.var(axis=0), 1
+        delta, total = mean - batch_path.mean, batch_path.count + n
+        batch_path.mean = batch_path.mean + delta * n / total
+        batch_path.var = (batch_path.var * batch_path.count + var * n
+                          + delta**2 * batch_path.count * n / total) / total
+        batch_path.count = total
+    assert np.array_equal(fast.mean, batch_path.mean) and np.array_equal(fast.var, batch_path.var)
