@@ -181,6 +181,41 @@ def update_profile(fn: Callable[[], None], calls: int = 200, top: int = 8) -> li
              "calls_per_update": round(e.count / calls, 1)} for e in events[:top]]
 
 
+def ppo_time_split(steps: int = 4096) -> dict[str, float]:
+    """Where a harness PPO run's time goes: shares of the run's wall time (cProfile)."""
+    import cProfile
+    import pstats
+
+    from baselines.common.context import TrainContext
+    from baselines.registry import get_algorithm
+
+    algorithm = get_algorithm("ppo")
+    ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
+                       eval_episodes=1)
+    algorithm.train(ctx, algorithm.make_config({}))  # imports and first calls off the clock
+    profiler = cProfile.Profile()
+    profiler.enable()
+    algorithm.train(ctx, algorithm.make_config({}))
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats  # (file, line, name) -> (cc, nc, tottime, cumtime, ..)
+    total = max(cum for _, _, _, cum, _ in stats.values())
+
+    def cumulative(file_part: str, name: str) -> float:
+        return sum(cum for (file, _, fn), (_, _, _, cum, _) in stats.items()
+                   if file_part in file and fn == name)
+
+    split = {
+        "env step (MuJoCo and wrappers)": cumulative("envs/__init__", "step"),
+        "policy sample per env step": cumulative("baselines/ppo", "sample"),
+        "observation normalisation": cumulative("baselines/ppo", "normalize"),
+        "backward": cumulative("torch/autograd/graph", "_engine_run_backward"),
+        "Adam": cumulative("torch/optim/adam", "step"),
+        "gradient clipping": cumulative("torch/nn/utils/clip_grad", "clip_grad_norm_"),
+    }
+    split["everything else (losses, GAE, the loop)"] = total - sum(split.values())
+    return {name: round(seconds / total, 3) for name, seconds in split.items()}
+
+
 def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None,
                             demos=None) -> float:
     """Env steps per second of a whole training run (updates from step 1000 on)."""
@@ -358,6 +393,7 @@ def main() -> None:
     results.update(median_of(repeats, {
         "harness_ppo_steps_per_s": lambda: harness_run_steps_per_s("ppo", 4 * 2048),
         "sb3_ppo_steps_per_s": lambda: sb3_ppo_steps_per_s(4 * 2048)}))
+    ppo_split = ppo_time_split()
     cores = os.cpu_count() or 1
     seeds = max(4, cores)
     print(f"measuring the machine: {seeds} seeds on {cores} processes ...", flush=True)
@@ -430,10 +466,13 @@ def main() -> None:
         "command": "nox -s bench", "hopper_steps_per_run": steps, "repeats": repeats,
         "measurements": results,
         "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
-        "twin_q_update_profile": profile_rows}, indent=2) + "\n")
+        "twin_q_update_profile": profile_rows, "ppo_time_split": ppo_split}, indent=2) + "\n")
     print("\nwhere the harness's twin-Q SAC update spends its time (self CPU time):")
     for row in profile_rows:
         print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")
+    print("\nwhere the harness's PPO run spends its time (share of wall time):")
+    for name, share in ppo_split.items():
+        print(f"  {name:40} {100 * share:5.1f}%")
     print(f"\nwritten: {args.out} ({results['bench_wall_s']:.0f} s)")
 
 
