@@ -30,14 +30,16 @@ from baselines.common.context import DemoSet, TrainContext
 from baselines.common.networks import mlp
 from baselines.registry import register
 from baselines.sac import PolicyExplorer, SACAgent, SACConfig, build_agent, run_off_policy
+from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
+from baselines.sac_twin_q import build_agent as build_twin_q_agent
 
 DISCRIMINATORS = ("functional", "gmm")
 GUIDERS = ("functional", "neural")
 
 
 @dataclass
-class DRLEGConfig(SACConfig):
-    """SAC's hyperparameters plus what the paper leaves unset (T2, sigma, K, T, the MLP)."""
+class GuidanceConfig:
+    """What the paper leaves unset in D(s) and G(s): T2, sigma, K, T, the MLP."""
 
     discriminator: str = "functional"  # "functional" (eq. 11) or "gmm" (eq. 10)
     guider: str = "functional"  # "functional" (eq. 12) or "neural"
@@ -50,8 +52,7 @@ class DRLEGConfig(SACConfig):
     neural_guider_steps: int = 2000  # regression steps of the neural guider
     neural_guider_hidden: tuple[int, ...] = (256, 256)
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def validate_guidance(self) -> None:
         self.neural_guider_hidden = tuple(int(w) for w in self.neural_guider_hidden)
         if self.guide_threshold < 0 or self.guide_noise_std < 0:
             raise ValueError("guide_threshold (T2) and guide_noise_std (sigma) must be >= 0")
@@ -60,6 +61,24 @@ class DRLEGConfig(SACConfig):
                              f"of {GUIDERS}")
         if not 0.0 <= self.gmm_threshold_quantile <= 1.0 or self.gmm_components < 1:
             raise ValueError("gmm_threshold_quantile must be in [0, 1] and gmm_components >= 1")
+
+
+@dataclass
+class DRLEGConfig(SACConfig, GuidanceConfig):
+    """The paper's SAC hyperparameters plus the guidance settings."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.validate_guidance()
+
+
+@dataclass
+class DRLEGTwinQConfig(TwinQSACConfig, GuidanceConfig):
+    """Twin-Q, learned-temperature SAC's hyperparameters plus the guidance settings."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.validate_guidance()
 
 
 @dataclass
@@ -211,10 +230,10 @@ class GuidedExplorer(PolicyExplorer):
         self.guidance.rng = state["guider_rng"]
 
 
-def _train_guided(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
+def _train_guided(ctx: TrainContext, config: DRLEGConfig | DRLEGTwinQConfig,
+                  agent: SACAgent | TwinQSACAgent) -> ReplayBuffer:
     if ctx.demos is None:
         raise ValueError("DRL-EG needs demonstrations")
-    agent = build_agent(ctx, config)
     low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
     high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
     guidance = Guidance(config, ctx.demos, low, high, ctx.seed)  # refitted the same on resume
@@ -224,10 +243,16 @@ def _train_guided(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
 @register("drl-eg", DRLEGConfig, needs_demos=True)
 def train(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
     """DRL-EG with the functional D(s) and G(s) of the paper, on top of SAC."""
-    return _train_guided(ctx, config)
+    return _train_guided(ctx, config, build_agent(ctx, config))
 
 
 @register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True)
 def train_gmm(ctx: TrainContext, config: DRLEGGMMConfig) -> ReplayBuffer:
     """DRL-EG with the GMM discriminator (density above T) and the functional guider."""
-    return _train_guided(ctx, config)
+    return _train_guided(ctx, config, build_agent(ctx, config))
+
+
+@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True)
+def train_twin_q(ctx: TrainContext, config: DRLEGTwinQConfig) -> ReplayBuffer:
+    """DRL-EG's guidance on twin-Q, learned-temperature SAC (not the paper's; SB3's SAC)."""
+    return _train_guided(ctx, config, build_twin_q_agent(ctx, config))

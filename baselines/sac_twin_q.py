@@ -174,12 +174,17 @@ class TwinQSACAgent:
                 "alpha": alpha.item(), "entropy": -log_prob.mean().item()}
 
 
-@register("sac-twin-q", TwinQSACConfig)
-def train(ctx: TrainContext, config: TwinQSACConfig) -> ReplayBuffer:
-    """SAC with twin target critics and learned temperature (SB3's SAC), for benches and experts."""
+def build_agent(ctx: TrainContext, config: TwinQSACConfig) -> TwinQSACAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
     agent = TwinQSACAgent(probe.observation_space.shape[0], space.shape[0], space.low,
                           space.high, config, seed=ctx.seed, device=ctx.device)
     probe.close()
+    return agent
+
+
+@register("sac-twin-q", TwinQSACConfig)
+def train(ctx: TrainContext, config: TwinQSACConfig) -> ReplayBuffer:
+    """SAC with twin target critics and learned temperature (SB3's SAC), for benches and experts."""
+    agent = build_agent(ctx, config)
     return run_off_policy(ctx, agent, PolicyExplorer(agent))

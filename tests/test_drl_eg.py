@@ -175,3 +175,13 @@ def test_kd_tree_guidance_finds_the_brute_force_nearest_demo():
         tree_distance, tree_index = guidance.tree.query(query)
         assert tree_index == index and tree_distance == pytest.approx(distance)
         assert np.allclose(guidance.guide(query), demos.actions[index])
+
+
+def test_guidance_on_twin_q_sac_is_off_at_zero_and_guides_at_a_large_threshold():
+    sac_curve, _ = train_tiny("sac-twin-q", seed=5, steps=400)
+    off_curve, _ = train_tiny("drl-eg-twin-q", seed=5, steps=400, guide_threshold=0.0)
+    assert [p.returns for p in off_curve] == [p.returns for p in sac_curve]
+    guided, buffer = train_tiny("drl-eg-twin-q", seed=5, steps=400, guide_threshold=1e6,
+                                guide_noise_std=0.0)
+    assert guided[1].guided_fraction == 1.0
+    assert set(np.round(buffer.actions[:400, 0], 6)) <= {-0.5, 0.5}

@@ -54,6 +54,7 @@ def run(algo, env_id, steps, checkpoint_path=None, kill_at=None, **overrides):
     ("sac", "Hopper-v5", {}),  # short episodes: several checkpoints before the kill
     ("sac-twin-q", "Hopper-v5", {"hidden_sizes": (16, 16)}),
     ("drl-eg", MOUNTAINCAR, {"guide_threshold": 0.5}),
+    ("drl-eg-twin-q", MOUNTAINCAR, {"guide_threshold": 0.5, "hidden_sizes": (16, 16)}),
     ("ddpgfd", "Hopper-v5", {"hidden_sizes": (16, 16)}),
     # checkpoints fall inside a rollout of 256 steps: the partial rollout is saved too
     ("ppo", "Hopper-v5", {"rollout_steps": 256}),
