@@ -38,6 +38,8 @@ DEFAULT_EXPERT_ALGO: dict[str, str] = {"Ant-v5": "sac-twin-q"}
 def expert_algo_for(env_id: str) -> str:
     """The algorithm that trains ``env_id``'s expert unless one is named."""
     return DEFAULT_EXPERT_ALGO.get(env_id, "sac")
+
+
 # A sparse-reward task takes the expert of its dense twin: same dynamics and observations.
 EXPERT_SOURCE: dict[str, str] = {
     "dm_control/cartpole-swingup_sparse-v0": "dm_control/cartpole-swingup-v0",
