@@ -99,6 +99,9 @@ def _build_parser() -> argparse.ArgumentParser:
     expert.add_argument("--algo", choices=("sac", "sac-twin-q"), default=None,
                         help="the trainer: the paper's V-network SAC, or twin-Q SAC with a "
                              "learned temperature (default: sac, but sac-twin-q for Ant-v5)")
+    expert.add_argument("--threads", type=int, default=1,
+                        help="torch threads for the updates (an expert training alone may use "
+                             "every core; results then differ in rounding from 1 thread)")
     expert.add_argument("--export-only", action="store_true",
                         help="do not train; export the best policy found so far")
 
@@ -264,7 +267,8 @@ def _cmd_expert(args: argparse.Namespace) -> int:
             path = train_expert(args.env, args.steps, args.root, args.seed,
                                 eval_interval=args.eval_interval,
                                 checkpoint_interval=args.checkpoint_interval,
-                                on_steps=bar.update, algo=args.algo)
+                                on_steps=bar.update, algo=args.algo,
+                                threads=args.threads)
     import torch
 
     meta = torch.load(path, weights_only=True)["metadata"]

@@ -70,7 +70,7 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
                  eval_interval: int = 10_000, eval_episodes: int = 5,
                  checkpoint_interval: int = 10_000,
                  on_steps: Callable[[int], None] = lambda n: None,
-                 algo: str | None = None) -> Path:
+                 algo: str | None = None, threads: int = 1) -> Path:
     """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
     env_spec(env_id)
     algo = algo or expert_algo_for(env_id)
@@ -103,14 +103,18 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
         best = max(curve, key=lambda p: p.mean_return)
         progress_file.write_text(json.dumps({
             "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
+            "torch_threads": threads,
             "steps_done": point.step, "best_step": best.step,
             "best_mean_return": best.mean_return,
             "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
             "wall_time_s_before_this_sitting": earlier_wall,
             "wall_time_s_this_sitting": time.time() - started}, indent=1))
 
+    if threads < 1:
+        raise HarnessError(f"thread count must be positive, got {threads}", "pass --threads 1")
     algorithm = get_algorithm(algo)
-    config = algorithm.make_config({})
+    # one expert alone on a machine may use every core for its matrix products
+    config = algorithm.make_config({"torch_threads": threads})
     ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
                        eval_episodes=eval_episodes, on_eval=on_eval, on_steps=on_steps,
                        checkpoint_path=work / "checkpoint.pt",
@@ -131,7 +135,7 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
     best = torch.load(best_file, weights_only=True)
     progress = json.loads(progress_file.read_text())
     algo = progress.get("algo", "sac")
-    config = get_algorithm(algo).make_config({})
+    config = get_algorithm(algo).make_config({"torch_threads": progress.get("torch_threads", 1)})
     metadata = {
         "env_id": env_id, "algo": algo, "seed": progress["seed"],
         "hidden_sizes": list(config.hidden_sizes),
