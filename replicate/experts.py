@@ -147,7 +147,9 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
                              + progress["wall_time_s_this_sitting"], 1),
         "curve": progress["curve"],
         "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}"
-                   + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}"),
+                   + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}")
+                   + ("" if progress.get("torch_threads", 1) == 1
+                      else f" --threads {progress['torch_threads']}"),
         "git_revision": provenance.git_revision(),
     }
     # half precision halves the committed file; demonstrations are rolled out from these
