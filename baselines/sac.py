@@ -78,7 +78,25 @@ def frozen(*modules: torch.nn.Module) -> Iterator[None]:
             p.requires_grad_(True)
 
 
-class SACAgent:
+class PolicyActor:
+    """Acting for an agent that holds a tanh-Gaussian ``policy``, its ``noise`` generator and
+    a ``device``: one observation in, one action out (sampled, or the deterministic one)."""
+
+    policy: TanhGaussianPolicy
+    noise: torch.Generator
+    device: torch.device
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
+        if deterministic:
+            action = self.policy.deterministic(obs_t)
+        else:
+            action, _ = self.policy.sample(obs_t, self.noise)
+        return action.squeeze(0).cpu().numpy()
+
+
+class SACAgent(PolicyActor):
     """The five networks, their optimisers, and one gradient step of SAC."""
 
     def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
@@ -114,15 +132,6 @@ class SACAgent:
                 self.noise.set_state(value)
             else:
                 getattr(self, name).load_state_dict(value)
-
-    @torch.no_grad()
-    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
-        if deterministic:
-            action = self.policy.deterministic(obs_t)
-        else:
-            action, _ = self.policy.sample(obs_t, self.noise)
-        return action.squeeze(0).cpu().numpy()
 
     def update(self, batch: Batch) -> dict[str, float]:
         cfg = self.config

@@ -30,7 +30,7 @@ from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import TrainContext
 from baselines.common.networks import TanhGaussianPolicy, soft_update
 from baselines.registry import register
-from baselines.sac import PolicyExplorer, frozen, run_off_policy
+from baselines.sac import PolicyActor, PolicyExplorer, frozen, run_off_policy
 from envs import make_env
 
 
@@ -86,7 +86,7 @@ class CriticEnsemble(nn.Module):
         return x.squeeze(-1)
 
 
-class TwinQSACAgent:
+class TwinQSACAgent(PolicyActor):
     """Policy, twin critics with their targets, the temperature, and one gradient step."""
 
     def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
@@ -126,15 +126,6 @@ class TwinQSACAgent:
                     self.log_alpha.copy_(value)
             else:
                 getattr(self, name).load_state_dict(value)
-
-    @torch.no_grad()
-    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).unsqueeze(0)
-        if deterministic:
-            action = self.policy.deterministic(obs_t)
-        else:
-            action, _ = self.policy.sample(obs_t, self.noise)
-        return action.squeeze(0).cpu().numpy()
 
     def update(self, batch: Batch) -> dict[str, float]:
         cfg = self.config
