@@ -240,19 +240,19 @@ def _train_guided(ctx: TrainContext, config: DRLEGConfig | DRLEGTwinQConfig,
     return run_off_policy(ctx, agent, GuidedExplorer(agent, guidance, ctx.demos.mean_return))
 
 
-@register("drl-eg", DRLEGConfig, needs_demos=True)
+@register("drl-eg", DRLEGConfig, needs_demos=True, gpu=True)
 def train(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
     """DRL-EG with the functional D(s) and G(s) of the paper, on top of SAC."""
     return _train_guided(ctx, config, build_agent(ctx, config))
 
 
-@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True)
+@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True, gpu=True)
 def train_gmm(ctx: TrainContext, config: DRLEGGMMConfig) -> ReplayBuffer:
     """DRL-EG with the GMM discriminator (density above T) and the functional guider."""
     return _train_guided(ctx, config, build_agent(ctx, config))
 
 
-@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True)
+@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True, gpu=True)
 def train_twin_q(ctx: TrainContext, config: DRLEGTwinQConfig) -> ReplayBuffer:
     """DRL-EG's guidance on twin-Q, learned-temperature SAC (not the paper's; SB3's SAC)."""
     return _train_guided(ctx, config, build_twin_q_agent(ctx, config))

@@ -24,6 +24,7 @@ class Algorithm:
     train: Callable[[TrainContext, Any], Any]
     needs_demos: bool
     summary: str
+    gpu: bool = False  # honours ``ctx.device``; the others always train on CPU
 
     def make_config(self, overrides: dict[str, Any] | None = None) -> Any:
         """The default config with ``overrides`` applied; unknown keys raise ``KeyError``."""
@@ -40,7 +41,7 @@ _REGISTRY: dict[str, Algorithm] = {}
 _discovered = False
 
 
-def register(name: str, config_cls: type, needs_demos: bool = False
+def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool = False
              ) -> Callable[[Callable], Callable]:
     """Decorator for an algorithm's ``train`` function."""
 
@@ -48,7 +49,7 @@ def register(name: str, config_cls: type, needs_demos: bool = False
         if name in _REGISTRY and _REGISTRY[name].train is not train:
             raise ValueError(f"algorithm '{name}' registered twice")
         summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
-        _REGISTRY[name] = Algorithm(name, config_cls, train, needs_demos, summary)
+        _REGISTRY[name] = Algorithm(name, config_cls, train, needs_demos, summary, gpu)
         return train
 
     return wrap

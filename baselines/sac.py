@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -24,9 +25,10 @@ import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
-                                         save_checkpoint)
+from baselines.common.checkpoint import (CheckpointDeviceError, due, env_rng_state,
+                                         load_checkpoint, restore_env_rng, save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.device import GraphedStep, make_adam
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
 from baselines.registry import register
@@ -100,7 +102,8 @@ class SACAgent(PolicyActor):
     """The five networks, their optimisers, and one gradient step of SAC."""
 
     def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: SACConfig, seed: int, device: str = "cpu"):
+                 action_high: np.ndarray, config: SACConfig, seed: int, device: str = "cpu",
+                 cuda_graphs: bool = True):
         self.config = config
         self.device = torch.device(device)
         # Weights come from this seed alone, so SAC and DRL-EG with one seed start identical.
@@ -113,10 +116,13 @@ class SACAgent(PolicyActor):
         self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high,
                                          hidden).to(self.device)
         lr = config.learning_rate
-        self.q_optimizer = torch.optim.Adam([*self.q1.parameters(), *self.q2.parameters()], lr=lr)
-        self.v_optimizer = torch.optim.Adam(self.v.parameters(), lr=lr)
-        self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=lr)
+        self.q_optimizer = make_adam([*self.q1.parameters(), *self.q2.parameters()], lr,
+                                     self.device, fused_on_cpu=False)
+        self.v_optimizer = make_adam(self.v.parameters(), lr, self.device, fused_on_cpu=False)
+        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device,
+                                          fused_on_cpu=False)
         self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
+        self.gradient_step = GraphedStep(self._gradient_step, self.device, cuda_graphs)
 
     def state_dict(self) -> dict[str, Any]:
         """Networks, optimisers and the exploration noise stream: all a resume needs."""
@@ -133,16 +139,22 @@ class SACAgent(PolicyActor):
             else:
                 getattr(self, name).load_state_dict(value)
 
-    def update(self, batch: Batch) -> dict[str, float]:
-        cfg = self.config
-        obs = batch.observations.to(self.device)
-        actions = batch.actions.to(self.device)
+    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """One gradient step on ``batch``. The losses come back as 0-d tensors: reading one
+        waits for the GPU, so the training loop reads them seldom."""
+        noise = torch.randn(batch.actions.shape, generator=self.noise, device=self.device)
+        return self.gradient_step(
+            obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
+            next_obs=batch.next_observations, terminated=batch.terminated, noise=noise)
 
+    def _gradient_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
+                       next_obs: torch.Tensor, terminated: torch.Tensor, noise: torch.Tensor
+                       ) -> dict[str, torch.Tensor]:
+        cfg = self.config
         # Soft Q-functions regress on r + gamma V'(s') (eq. 15).
         with torch.no_grad():
-            next_v = self.v_target(batch.next_observations.to(self.device))
-            y_q = q_target(batch.rewards.to(self.device), batch.terminated.to(self.device),
-                           next_v, cfg.gamma, cfg.reward_scale)
+            y_q = q_target(rewards, terminated, self.v_target(next_obs), cfg.gamma,
+                           cfg.reward_scale)
         q_loss = 0.5 * F.mse_loss(self.q1(obs, actions), y_q) \
             + 0.5 * F.mse_loss(self.q2(obs, actions), y_q)
         self.q_optimizer.zero_grad()
@@ -151,7 +163,7 @@ class SACAgent(PolicyActor):
 
         # V regresses on the soft value of a fresh policy action (eq. 15); the policy
         # minimises the KL to the exponentiated Q through the reparameterisation (eq. 13-14).
-        new_actions, log_prob = self.policy.sample(obs, self.noise)
+        new_actions, log_prob = self.policy.sample(obs, noise=noise)
         with frozen(self.q1, self.q2):  # the policy step needs dQ/da, not Q's weight gradients
             q_new = torch.min(self.q1(obs, new_actions), self.q2(obs, new_actions))
         v_loss = 0.5 * F.mse_loss(self.v(obs), v_target(q_new, log_prob).detach())
@@ -165,8 +177,8 @@ class SACAgent(PolicyActor):
         self.policy_optimizer.step()
 
         soft_update(self.v_target, self.v, cfg.tau)
-        return {"q_loss": q_loss.item(), "v_loss": v_loss.item(),
-                "policy_loss": policy_loss.item(), "entropy": -log_prob.mean().item()}
+        return {"q_loss": q_loss.detach(), "v_loss": v_loss.detach(),
+                "policy_loss": policy_loss.detach(), "entropy": -log_prob.detach().mean()}
 
 
 class PolicyExplorer:
@@ -189,6 +201,9 @@ class PolicyExplorer:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         pass
+
+
+DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the critic loss
 
 
 def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer) -> ReplayBuffer:
@@ -223,7 +238,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
 
     def save(step: int) -> None:
         save_checkpoint(ctx.checkpoint_path, {
-            "step": step, "agent": agent.state_dict(), "explorer": explorer.state_dict(),
+            "step": step, "device": agent.device.type, "agent": agent.state_dict(), "explorer": explorer.state_dict(),
             "buffer": buffer.state_dict(), "batch_rng": batch_rng, "curve": curve,
             "counters": (guided_steps, steps_since_eval, best_return),
             "env_rng": env_rng_state(env), "eval_env_rng": env_rng_state(eval_env)})
@@ -236,6 +251,12 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         guided_steps = steps_since_eval = 0
     else:
         start = resumed["step"] + 1
+        saved_on = resumed.get("device", "cpu")
+        if saved_on != agent.device.type:  # the noise streams of CPU and CUDA differ in kind
+            raise CheckpointDeviceError(
+                f"the checkpoint at {ctx.checkpoint_path} was made on {saved_on}; "
+                f"resume it with --device {saved_on}, or delete it to start over on "
+                f"{agent.device.type}")
         agent.load_state_dict(resumed["agent"])
         explorer.load_state_dict(resumed["explorer"])
         buffer.load_state_dict(resumed["buffer"])
@@ -262,8 +283,10 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         if step >= cfg.learning_starts:
             for _ in range(cfg.gradient_steps):
                 losses = agent.update(buffer.sample(cfg.batch_size, batch_rng))
-            if not np.isfinite(losses["q_loss"]):
-                raise FloatingPointError(f"SAC diverged at step {step}: losses {losses}")
+            # reading a loss waits for the GPU, so it is read every hundred steps
+            if step % DIVERGENCE_CHECK_INTERVAL == 0 and not math.isfinite(losses["q_loss"]):
+                raise FloatingPointError(f"SAC diverged at step {step}: losses "
+                                         f"{ {name: float(v) for name, v in losses.items()} }")
 
         if step % ctx.eval_interval == 0 or step == ctx.total_steps:
             evaluate_and_record(step, guided_steps, steps_since_eval)
@@ -284,12 +307,12 @@ def build_agent(ctx: TrainContext, config: SACConfig) -> SACAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
     agent = SACAgent(probe.observation_space.shape[0], space.shape[0], space.low, space.high,
-                     config, seed=ctx.seed, device=ctx.device)
+                     config, seed=ctx.seed, device=ctx.device, cuda_graphs=ctx.cuda_graphs)
     probe.close()
     return agent
 
 
-@register("sac", SACConfig)
+@register("sac", SACConfig, gpu=True)
 def train(ctx: TrainContext, config: SACConfig) -> ReplayBuffer:
     """SAC with a V network (Haarnoja et al. 2018), the paper's baseline and DRL-EG's base."""
     agent = build_agent(ctx, config)

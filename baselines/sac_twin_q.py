@@ -28,6 +28,7 @@ from torch import nn
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import TrainContext
+from baselines.common.device import GraphedStep, make_adam
 from baselines.common.networks import TanhGaussianPolicy, soft_update
 from baselines.registry import register
 from baselines.sac import PolicyActor, PolicyExplorer, frozen, run_off_policy
@@ -90,7 +91,8 @@ class TwinQSACAgent(PolicyActor):
     """Policy, twin critics with their targets, the temperature, and one gradient step."""
 
     def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: TwinQSACConfig, seed: int, device: str = "cpu"):
+                 action_high: np.ndarray, config: TwinQSACConfig, seed: int, device: str = "cpu",
+                 cuda_graphs: bool = True):
         self.config = config
         self.device = torch.device(device)
         torch.manual_seed(seed)
@@ -104,10 +106,11 @@ class TwinQSACAgent(PolicyActor):
         self.target_entropy = config.target_entropy_per_action_dim * act_dim
         lr = config.learning_rate
         # fused Adam: one kernel per optimiser step instead of a loop over parameters
-        self.critic_optimizer = torch.optim.Adam(self.critics.parameters(), lr=lr, fused=True)
-        self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=lr, fused=True)
-        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=lr, fused=True)
+        self.critic_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
+        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
+        self.alpha_optimizer = make_adam([self.log_alpha], lr, self.device, True)
         self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
+        self.gradient_step = GraphedStep(self._gradient_step, self.device, cuda_graphs)
 
     def state_dict(self) -> dict[str, Any]:
         modules = ("critics", "critics_target", "policy",
@@ -127,26 +130,37 @@ class TwinQSACAgent(PolicyActor):
             else:
                 getattr(self, name).load_state_dict(value)
 
-    def update(self, batch: Batch) -> dict[str, float]:
+    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """One gradient step on ``batch``. The losses come back as 0-d tensors: reading one
+        waits for the GPU, so the training loop reads them seldom."""
+        rows, act_dim = batch.actions.shape
+        # both draws precede the step, in the order the step uses them
+        next_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
+        new_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
+        return self.gradient_step(
+            obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
+            next_obs=batch.next_observations, terminated=batch.terminated,
+            next_noise=next_noise, new_noise=new_noise)
+
+    def _gradient_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
+                       next_obs: torch.Tensor, terminated: torch.Tensor,
+                       next_noise: torch.Tensor, new_noise: torch.Tensor
+                       ) -> dict[str, torch.Tensor]:
         cfg = self.config
-        obs = batch.observations.to(self.device)
-        actions = batch.actions.to(self.device)
         alpha = self.log_alpha.detach().exp()
 
         # Critics regress on the soft value of the next state under the target critics.
         with torch.no_grad():
-            next_obs = batch.next_observations.to(self.device)
-            next_actions, next_log_prob = self.policy.sample(next_obs, self.noise)
+            next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
             next_q = self.critics_target(next_obs, next_actions).min(dim=0).values
-            not_done = 1.0 - batch.terminated.to(self.device)
-            y = batch.rewards.to(self.device) + cfg.gamma * not_done * (next_q - alpha * next_log_prob)
+            y = rewards + cfg.gamma * (1.0 - terminated) * (next_q - alpha * next_log_prob)
         q_loss = 0.5 * (self.critics(obs, actions) - y).pow(2).mean(dim=1).sum()
         self.critic_optimizer.zero_grad()
         q_loss.backward()
         self.critic_optimizer.step()
 
         # The policy follows the smaller critic through the reparameterised action.
-        new_actions, log_prob = self.policy.sample(obs, self.noise)
+        new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
         with frozen(self.critics):
             q_new = self.critics(obs, new_actions).min(dim=0).values
         policy_loss = (alpha * log_prob - q_new).mean()
@@ -161,20 +175,21 @@ class TwinQSACAgent(PolicyActor):
         self.alpha_optimizer.step()
 
         soft_update(self.critics_target, self.critics, cfg.tau)
-        return {"q_loss": q_loss.item(), "policy_loss": policy_loss.item(),
-                "alpha": alpha.item(), "entropy": -log_prob.mean().item()}
+        return {"q_loss": q_loss.detach(), "policy_loss": policy_loss.detach(), "alpha": alpha,
+                "entropy": -log_prob.detach().mean()}
 
 
 def build_agent(ctx: TrainContext, config: TwinQSACConfig) -> TwinQSACAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
     agent = TwinQSACAgent(probe.observation_space.shape[0], space.shape[0], space.low,
-                          space.high, config, seed=ctx.seed, device=ctx.device)
+                          space.high, config, seed=ctx.seed, device=ctx.device,
+                          cuda_graphs=ctx.cuda_graphs)
     probe.close()
     return agent
 
 
-@register("sac-twin-q", TwinQSACConfig)
+@register("sac-twin-q", TwinQSACConfig, gpu=True)
 def train(ctx: TrainContext, config: TwinQSACConfig) -> ReplayBuffer:
     """SAC with twin target critics and learned temperature (SB3's SAC), for benches and experts."""
     agent = build_agent(ctx, config)

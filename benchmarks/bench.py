@@ -123,21 +123,29 @@ def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]
     return update
 
 
-def make_harness_update(algo: str = "sac") -> Callable[[], None]:
+def make_harness_update(algo: str = "sac", device: str = "cpu",
+                        cuda_graphs: bool = True) -> Callable[[], None]:
     """One update of the harness's SAC (``sac``: the paper's V-network version, or
-    ``sac-twin-q``) on a filled buffer."""
+    ``sac-twin-q``) on a filled buffer. On CUDA the call waits for the GPU to finish."""
     from baselines.common.buffer import ReplayBuffer
     from baselines.sac import SACAgent, SACConfig
     from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 
-    if algo == "sac":
-        agent = SACAgent(11, 3, -np.ones(3), np.ones(3), SACConfig(), seed=0)
-    else:
-        agent = TwinQSACAgent(11, 3, -np.ones(3), np.ones(3), TwinQSACConfig(), seed=0)
+    agent_cls, config = ((SACAgent, SACConfig()) if algo == "sac"
+                         else (TwinQSACAgent, TwinQSACConfig()))
+    agent = agent_cls(11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device,
+                      cuda_graphs=cuda_graphs)
     buffer, rng = ReplayBuffer(11, 3, 10_000), np.random.default_rng(0)
     for _ in range(5000):
         buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), 1.0, rng.normal(size=11), False)
-    return lambda: agent.update(buffer.sample(256, rng))
+    if device == "cpu":
+        return lambda: agent.update(buffer.sample(256, rng))
+
+    def update_and_wait() -> None:
+        agent.update(buffer.sample(256, rng))
+        torch.cuda.synchronize()
+
+    return update_and_wait
 
 
 def seconds_per_call(fn: Callable[[], None], calls: int) -> float:
@@ -217,7 +225,7 @@ def ppo_time_split(steps: int = 4096) -> dict[str, float]:
 
 
 def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None,
-                            demos=None) -> float:
+                            demos=None, device: str = "cpu", cuda_graphs: bool = True) -> float:
     """Env steps per second of a whole training run (updates from step 1000 on)."""
     from baselines.common.context import TrainContext
     from baselines.registry import get_algorithm
@@ -225,7 +233,7 @@ def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None
     algorithm = get_algorithm(algo)
     config = algorithm.make_config(overrides or {})
     ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
-                       eval_episodes=1, demos=demos)
+                       eval_episodes=1, demos=demos, device=device, cuda_graphs=cuda_graphs)
     start = time.perf_counter()
     algorithm.train(ctx, config)
     return steps / (time.perf_counter() - start)
@@ -285,7 +293,7 @@ def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[st
             "guided_fraction": guided / (3 * len(visited))}
 
 
-def sb3_sac_steps_per_s(steps: int) -> float:
+def sb3_sac_steps_per_s(steps: int, device: str = "cpu") -> float:
     import gymnasium as gym
     from stable_baselines3 import SAC
 
@@ -293,7 +301,7 @@ def sb3_sac_steps_per_s(steps: int) -> float:
     model = SAC("MlpPolicy", gym.make(ENV_ID), learning_rate=3e-4, buffer_size=steps,
                 learning_starts=WARMUP, batch_size=256, tau=0.005, gamma=0.99, train_freq=1,
                 gradient_steps=1, policy_kwargs={"net_arch": [256, 256]}, seed=0,
-                device="cpu", verbose=0)
+                device=device, verbose=0)
     start = time.perf_counter()
     model.learn(total_timesteps=steps)
     return steps / (time.perf_counter() - start)
@@ -311,20 +319,22 @@ def sb3_ppo_steps_per_s(steps: int) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def _one_process(job: tuple[str, int]) -> float:
-    kind, steps = job
+def _one_process(job: tuple[str, int, str]) -> float:
+    kind, steps, device = job
     torch.set_num_threads(1)
     if kind == "sb3":
-        return sb3_sac_steps_per_s(steps)
-    return harness_run_steps_per_s(kind, steps)
+        return sb3_sac_steps_per_s(steps, device)
+    return harness_run_steps_per_s(kind, steps, device=device)
 
 
-def machine_steps_per_s(kind: str, steps: int, processes: int, runs: int) -> float:
+def machine_steps_per_s(kind: str, steps: int, processes: int, runs: int,
+                        device: str = "cpu") -> float:
     """Total env steps per second of a ``runs``-seed SAC job on ``processes`` processes."""
     with mp.get_context("spawn").Pool(processes) as pool:
-        pool.map(_one_process, [(kind, 10)] * processes)  # imports paid before the clock
+        # imports and CUDA start-up paid before the clock
+        pool.map(_one_process, [(kind, WARMUP + 10, device)] * processes)
         start = time.perf_counter()
-        pool.map(_one_process, [(kind, steps)] * runs, chunksize=1)
+        pool.map(_one_process, [(kind, steps, device)] * runs, chunksize=1)
         return runs * steps / (time.perf_counter() - start)
 
 
@@ -337,6 +347,87 @@ def median_of(repeats: int, measurements: dict[str, Callable[[], float]]) -> dic
     return {name: float(np.median(v)) for name, v in values.items()}
 
 
+def gpu_measurements(steps: int, repeats: int) -> tuple[dict[str, float], list[tuple]]:
+    """The GPU path: graphed against eager updates, whole runs against SB3 on the same GPU and
+    against both on this machine's CPU, and a one-seed-per-core job on the one GPU."""
+    results: dict[str, float] = {}
+    cores = os.cpu_count() or 1
+    print(f"measuring on {torch.cuda.get_device_name()}: updates ...", flush=True)
+    twin_graphed = make_harness_update("sac-twin-q", "cuda", cuda_graphs=True)
+    twin_eager = make_harness_update("sac-twin-q", "cuda", cuda_graphs=False)
+    v_graphed = make_harness_update("sac", "cuda", cuda_graphs=True)
+    results.update(median_of(repeats, {
+        "gpu_twin_q_update_graphed_ms": lambda: 1e3 * seconds_per_call(twin_graphed, 500),
+        "gpu_twin_q_update_eager_ms": lambda: 1e3 * seconds_per_call(twin_eager, 500),
+        "gpu_v_sac_update_graphed_ms": lambda: 1e3 * seconds_per_call(v_graphed, 500)}))
+    print(f"measuring runs of {steps} steps on the GPU and on one CPU core ...", flush=True)
+    near = {"guide_threshold": 0.1}
+    results.update(median_of(repeats, {
+        "gpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s(
+            "sac-twin-q", steps, device="cuda"),
+        "gpu_harness_twin_q_eager_steps_per_s": lambda: harness_run_steps_per_s(
+            "sac-twin-q", steps, device="cuda", cuda_graphs=False),
+        "gpu_harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s(
+            "sac", steps, device="cuda"),
+        "gpu_drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
+            "drl-eg", steps, near, hopper_demos(1000), device="cuda"),
+        "gpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps, "cuda"),
+        "cpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s("sac-twin-q", steps),
+        "cpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps)}))
+    print(f"measuring the machine: {cores} seeds, harness on the GPU, SB3 one per core ...",
+          flush=True)
+    results["gpu_machine_harness_steps_per_s"] = machine_steps_per_s(
+        "sac-twin-q", steps, cores, cores, "cuda")
+    results["gpu_machine_sb3_cpu_steps_per_s"] = machine_steps_per_s("sb3", steps, cores, cores)
+    r = results
+    rows = [
+        ("GPU: one twin-Q SAC run / one SB3 SAC run, both on the GPU",
+         r["gpu_harness_twin_q_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"], ">= 1.5"),
+        ("GPU: one twin-Q SAC run on the GPU / one SB3 SAC run on a core",
+         r["gpu_harness_twin_q_steps_per_s"] / r["cpu_sb3_sac_steps_per_s"], ">= 1.5"),
+        ("GPU: twin-Q run, graphed / eager", r["gpu_harness_twin_q_steps_per_s"]
+         / r["gpu_harness_twin_q_eager_steps_per_s"], "(what CUDA graphs buy)"),
+        ("GPU: twin-Q update, eager / graphed", r["gpu_twin_q_update_eager_ms"]
+         / r["gpu_twin_q_update_graphed_ms"], "(launch overhead removed)"),
+        ("GPU: twin-Q run on the GPU / on one core", r["gpu_harness_twin_q_steps_per_s"]
+         / r["cpu_harness_twin_q_steps_per_s"], ""),
+        ("GPU: paper V-SAC run / SB3 SAC run, both on the GPU",
+         r["gpu_harness_v_sac_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"], ""),
+        ("GPU: DRL-EG step time / V-SAC step time (1000 demos, T2 = 0.1)",
+         r["gpu_harness_v_sac_steps_per_s"] / r["gpu_drl_eg_1k_steps_per_s"],
+         "(whole runs; different trajectories)"),
+        (f"GPU machine, {cores} seeds: harness on the GPU / SB3 on {cores} cores",
+         r["gpu_machine_harness_steps_per_s"] / r["gpu_machine_sb3_cpu_steps_per_s"], ">= 1.5"),
+    ]
+    return results, rows
+
+
+def print_table(rows: list[tuple]) -> None:
+    print(f"\n{'ratio':66} {'measured':>9}  target")
+    for name, value, target in rows:
+        print(f"{name:66} {value:9.3f}  {target}")
+
+
+def main_gpu(args: argparse.Namespace) -> None:
+    """``--gpu-only``: the GPU section alone, into its own file."""
+    began = time.perf_counter()
+    results, rows = gpu_measurements(args.steps, args.repeats)
+    results["bench_wall_s"] = time.perf_counter() - began
+    print_table(rows)
+    print("\nraw measurements:")
+    for name, value in results.items():
+        print(f"  {name:52} {value:12.3f}")
+    out = args.out.with_name("bench_gpu.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                    "gpu": torch.cuda.get_device_name(), "torch": torch.__version__},
+        "command": "nox -s bench -- --gpu-only", "hopper_steps_per_run": args.steps,
+        "repeats": args.repeats, "measurements": results,
+        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows]}, indent=2) + "\n")
+    print(f"\nwritten: {out} ({results['bench_wall_s']:.0f} s)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2500,
@@ -344,10 +435,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3,
                         help="whole-run measurements are the median of this many")
     parser.add_argument("--out", type=Path, default=Path("reports/bench/bench.json"))
+    parser.add_argument("--gpu-only", action="store_true",
+                        help="measure only the GPU path (reports/bench/bench_gpu.json)")
     args = parser.parse_args()
     if args.steps <= WARMUP or args.repeats < 1:
         parser.error(f"--steps must exceed {WARMUP} (the warm-up) and --repeats be >= 1")
     torch.set_num_threads(1)
+    if args.gpu_only:
+        if not torch.cuda.is_available():
+            parser.error("--gpu-only needs a CUDA GPU, and torch sees none")
+        main_gpu(args)
+        return
     steps, repeats = args.steps, args.repeats
     update_steps = steps - WARMUP
     results: dict[str, float] = {}
@@ -452,10 +550,12 @@ def main() -> None:
         ("adapter time per step / raw env", results["raw_env_steps_per_s"]
          / results["adapter_env_steps_per_s"], "<= 1.05"),
     ]
+    if torch.cuda.is_available():  # the GPU path, when there is one, beside the CPU's
+        gpu_results, gpu_rows = gpu_measurements(steps, repeats)
+        results.update(gpu_results)
+        rows += gpu_rows
     results["bench_wall_s"] = time.perf_counter() - began
-    print(f"\n{'ratio':58} {'measured':>9}  target")
-    for name, value, target in rows:
-        print(f"{name:58} {value:9.3f}  {target}")
+    print_table(rows)
     print("\nraw measurements:")
     for name, value in results.items():
         print(f"  {name:52} {value:12.3f}")

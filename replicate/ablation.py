@@ -90,7 +90,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                            thresholds: list[float] | None = None,
                            sigmas: list[float] | None = None, env_id: str = ABLATION_ENV,
                            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-                           executor: str = "local", address: str | None = None) -> Path:
+                           executor: str = "local", address: str | None = None,
+                           device: str = "auto") -> Path:
     """Run (or finish) the sweep and write its report; return the report's path."""
     import optuna
 
@@ -117,14 +118,14 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
 
     # SAC on the same seeds: what T2 = 0 must reproduce exactly.
     sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
-                           checkpoint_interval, executor, address)
+                           checkpoint_interval, executor, address, device)
     failed = list(sac_outcome.failed)
 
     def objective(trial: Any) -> float:
         threshold = trial.suggest_categorical("guide_threshold", grid_t2)
         sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
         outcome = run_grid(ablation_specs(chosen, env_id, threshold, sigma, n_seeds), store,
-                           workers, checkpoint_interval, executor, address)
+                           workers, checkpoint_interval, executor, address, device)
         failed.extend(outcome.failed)
         if not outcome.runs:
             raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",

@@ -28,6 +28,17 @@ def _parse_overrides(pairs: list[str]) -> dict:
     return overrides
 
 
+
+DEVICE_HELP = ("where algorithms with a GPU path (SAC, twin-Q SAC, DRL-EG) train: auto takes "
+               "the GPU when torch sees one; cuda fails without one. The others train on CPU. "
+               "Curves are reproducible bit for bit on CPU only")
+
+
+def _add_device_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                        help=DEVICE_HELP)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m replicate",
@@ -64,6 +75,7 @@ def _build_parser() -> argparse.ArgumentParser:
     train.add_argument("--checkpoint-interval", type=int, default=10_000,
                        help="env steps between checkpoints (at the next episode end; 0: "
                             "none); an interrupted run resumes from its last one")
+    _add_device_argument(train)
 
     demos = sub.add_parser(
         "demos", help="make a demonstration file from the harness's own expert",
@@ -102,6 +114,7 @@ def _build_parser() -> argparse.ArgumentParser:
     expert.add_argument("--threads", type=int, default=1,
                         help="torch threads for the updates (an expert training alone may use "
                              "every core; results then differ in rounding from 1 thread)")
+    _add_device_argument(expert)
     expert.add_argument("--export-only", action="store_true",
                         help="do not train; export the best policy found so far")
 
@@ -118,6 +131,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
     fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    _add_device_argument(fig3)
     fig3.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig3.add_argument("--address", default=None,
@@ -142,6 +156,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
     fig4.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
+    _add_device_argument(fig4)
     fig4.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
@@ -168,6 +183,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="optuna storage URL (default: SQLite in the run store)")
     ablate.add_argument("--workers", type=int, default=None,
                         help="parallel training processes (default: one per core)")
+    _add_device_argument(ablate)
     ablate.add_argument("--executor", default="local", choices=["local", "ray"],
                         help="local processes, or tasks on a running Ray cluster (--address)")
     ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
@@ -218,11 +234,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
     with tqdm(total=spec.total_steps, unit="step", desc=prepared.run_id[:48],
               dynamic_ncols=True) as bar:
         run = execute(prepared, args.store, on_steps=bar.update,
-                      checkpoint_interval=args.checkpoint_interval)
+                      checkpoint_interval=args.checkpoint_interval, device=args.device)
     prov = run.provenance
     print(f"run: {run.path}")
     print(f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
-          f"{prov['env_steps_per_s']} env steps/s")
+          f"{prov['env_steps_per_s']} env steps/s on {prov['device']}")
     return 0
 
 
@@ -268,7 +284,7 @@ def _cmd_expert(args: argparse.Namespace) -> int:
                                 eval_interval=args.eval_interval,
                                 checkpoint_interval=args.checkpoint_interval,
                                 on_steps=bar.update, algo=args.algo,
-                                threads=args.threads)
+                                threads=args.threads, device=args.device)
     import torch
 
     meta = torch.load(path, weights_only=True)["metadata"]
@@ -283,7 +299,7 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     out = args.out or _default_out(args.profile)
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
                          workers=args.workers, checkpoint_interval=args.checkpoint_interval,
-                         executor=args.executor, address=args.address)
+                         executor=args.executor, address=args.address, device=args.device)
     print(f"report: {report}")
     return 0
 
@@ -299,7 +315,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
     report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
                          store=args.store, out_dir=args.out, workers=args.workers,
-                         executor=args.executor, address=args.address)
+                         executor=args.executor, address=args.address, device=args.device)
     print(f"report: {report}")
     return 0
 
@@ -311,7 +327,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     out_dir=args.out, storage=args.storage,
                                     workers=args.workers, thresholds=args.thresholds,
                                     sigmas=args.sigmas, executor=args.executor,
-                                    address=args.address)
+                                    address=args.address, device=args.device)
     print(f"report: {report}")
     return 0
 

@@ -21,8 +21,8 @@ import numpy as np
 from tqdm import tqdm
 
 from replicate.errors import HarnessError
-from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, execute,
-                              is_complete, load_run, prepare)
+from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
+                              execute, is_complete, load_run, prepare)
 from replicate.spec import RunSpec
 
 
@@ -165,7 +165,7 @@ def _init_worker(progress: Any) -> None:
     _progress = progress
 
 
-def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
+def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int, device: str) -> str:
     """Train one run in a worker process, posting step counts to the progress queue."""
     progress = _progress
     pending = 0
@@ -182,7 +182,8 @@ def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
             progress.put(pending)
             pending = 0
 
-    execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval)
+    execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
+            device=device)
     progress.put(pending)
     return prepared.run_id
 
@@ -223,16 +224,19 @@ EXECUTORS = ("local", "ray")
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-             address: str | None = None) -> GridOutcome:
+             address: str | None = None, device: str = "auto") -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
-    processes (one per core by default), or as tasks on an existing Ray cluster."""
+    processes (one per core by default), or as tasks on an existing Ray cluster. ``device``
+    is each run's (``auto``: the GPU when there is one, for algorithms with a GPU path)."""
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
+    if executor == "local":
+        check_device(device)  # on Ray, each node judges its own
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
     if executor == "ray":
-        return _run_on_ray(prepared, missing, store, address, checkpoint_interval)
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, device)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
     total_steps = sum(p.spec.total_steps for p in missing)
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
@@ -251,7 +255,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                      initializer=_init_worker, initargs=(progress,)) as pool:
                 futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), checkpoint_interval): p
+                    pool.submit(_worker, p, str(store), checkpoint_interval, device): p
                     for p in missing}
                 pending = set(futures)
                 done_count = 0
@@ -284,7 +288,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
 def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
                 out_dir: Path = Path("reports/fig3"), workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None) -> Path:
+                address: str | None = None, device: str = "auto") -> Path:
     """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
     from replicate.report import write_figure3_report
 
@@ -292,7 +296,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     specs, skipped = figure3_grid(chosen, seeds)
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address)
+    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device)
     outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
@@ -307,13 +311,15 @@ def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
     return [load_run(d) for d in directories if is_complete(d)]
 
 
-def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
-    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval)
+def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int,
+                 device: str) -> str:
+    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval, device=device)
     return prepared.run_id
 
 
 def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-                address: str | None, checkpoint_interval: int) -> GridOutcome:
+                address: str | None, checkpoint_interval: int, device: str = "auto"
+                ) -> GridOutcome:
     """One Ray task per missing run, one CPU each. The store must be a path every node
     sees (a shared filesystem), and every node needs this project installed."""
     try:
@@ -333,7 +339,8 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
     started = time.time()
     failed: list[tuple[str, str]] = []
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
-    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval): p for p in missing}
+    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval, device): p
+               for p in missing}
     with tqdm(total=len(missing), unit="run", dynamic_ncols=True, desc="training on Ray") as bar:
         while pending:
             finished, _ = ray.wait(list(pending), num_returns=1)
@@ -426,12 +433,12 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                 store: Path = Path("runs"), out_dir: Path | None = None,
                 workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None) -> Path:
+                address: str | None = None, device: str = "auto") -> Path:
     """Train what Fig. 4 lacks and write its report; return the report's path."""
     from replicate.report import write_figure4_report
 
     chosen = get_profile(profile)
     outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
-                       executor, address)
+                       executor, address, device)
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_figure4_report(outcome, chosen, env_id, out_dir)

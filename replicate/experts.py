@@ -22,11 +22,13 @@ import torch
 
 from baselines.common.checkpoint import save_checkpoint
 from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.device import describe_device, resolve_device
 from baselines.common.networks import TanhGaussianPolicy
 from baselines.registry import get_algorithm
 from envs import env_spec, make_env
 from replicate import provenance
 from replicate.errors import HarnessError
+from replicate.runner import check_device
 
 EXPERT_DATA_DIR = "data/experts"
 EXPERT_ALGOS = ("sac", "sac-twin-q")
@@ -70,7 +72,7 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
                  eval_interval: int = 10_000, eval_episodes: int = 5,
                  checkpoint_interval: int = 10_000,
                  on_steps: Callable[[int], None] = lambda n: None,
-                 algo: str | None = None, threads: int = 1) -> Path:
+                 algo: str | None = None, threads: int = 1, device: str = "auto") -> Path:
     """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
     env_spec(env_id)
     algo = algo or expert_algo_for(env_id)
@@ -103,7 +105,7 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
         best = max(curve, key=lambda p: p.mean_return)
         progress_file.write_text(json.dumps({
             "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
-            "torch_threads": threads,
+            "torch_threads": threads, "device": describe_device(resolved_device),
             "steps_done": point.step, "best_step": best.step,
             "best_mean_return": best.mean_return,
             "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
@@ -113,13 +115,15 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     if threads < 1:
         raise HarnessError(f"thread count must be positive, got {threads}", "pass --threads 1")
     algorithm = get_algorithm(algo)
+    check_device(device)
+    resolved_device = resolve_device(device, algorithm.gpu)
     # one expert alone on a machine may use every core for its matrix products
     config = algorithm.make_config({"torch_threads": threads})
     ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
                        eval_episodes=eval_episodes, on_eval=on_eval, on_steps=on_steps,
                        checkpoint_path=work / "checkpoint.pt",
                        checkpoint_interval=checkpoint_interval,
-                       best_policy_path=work / "best_policy.pt")
+                       best_policy_path=work / "best_policy.pt", device=resolved_device)
     algorithm.train(ctx, config)
     (work / "checkpoint.pt").unlink(missing_ok=True)  # finished: the buffer is not needed
     return export_expert(env_id, root)
@@ -132,7 +136,7 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
     if not best_file.is_file() or not progress_file.is_file():
         raise HarnessError(f"no expert training found in {work}",
                            f"train one first: python -m replicate expert --env {env_id}")
-    best = torch.load(best_file, weights_only=True)
+    best = torch.load(best_file, weights_only=True, map_location="cpu")
     progress = json.loads(progress_file.read_text())
     algo = progress.get("algo", "sac")
     config = get_algorithm(algo).make_config({"torch_threads": progress.get("torch_threads", 1)})
@@ -170,7 +174,7 @@ class ExpertPolicy:
             raise HarnessError(f"no expert for {env_id} at {path}",
                                f"train one: python -m replicate expert --env "
                                f"{EXPERT_SOURCE.get(env_id, env_id)} --steps 1000000")
-        saved = torch.load(path, weights_only=True)
+        saved = torch.load(path, weights_only=True, map_location="cpu")
         self.metadata: dict[str, Any] = saved["metadata"]
         env = make_env(env_id)
         space = env.action_space

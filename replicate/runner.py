@@ -32,7 +32,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from baselines.common.checkpoint import CheckpointDeviceError
 from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.device import DeviceUnavailableError, describe_device, resolve_device
 from baselines.registry import get_algorithm
 from replicate import provenance
 from replicate.demos import Demonstrations, default_demo_path, load_demos
@@ -138,11 +140,22 @@ def partial_directory(prepared: PreparedRun, store: Path) -> Path:
     return Path(store) / f".partial-{prepared.run_id}"
 
 
+def check_device(requested: str) -> None:
+    """Fail early, with the fix, when ``requested`` (``--device``) cannot be honoured here."""
+    try:
+        resolve_device(requested, has_gpu_path=True)
+    except (ValueError, DeviceUnavailableError) as exc:
+        raise HarnessError(str(exc), "pass --device auto (GPU when present) or --device cpu"
+                           ) from None
+
+
 def execute(prepared: PreparedRun, store: Path,
             on_steps: Callable[[int], None] = lambda n: None,
-            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL) -> Run:
+            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto") -> Run:
     """Train ``prepared`` into the store unless a complete run with its address exists;
-    resume it from its checkpoint if an earlier attempt was interrupted."""
+    resume it from its checkpoint if an earlier attempt was interrupted. ``device``: ``auto``
+    (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``."""
+    check_device(device)
     store = Path(store)
     final_dir = prepared.directory(store)
     if is_complete(final_dir):
@@ -164,7 +177,10 @@ def execute(prepared: PreparedRun, store: Path,
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
                     try:
-                        _train_into(prepared, work_dir, on_steps, checkpoint_interval)
+                        _train_into(prepared, work_dir, on_steps, checkpoint_interval, device)
+                    except CheckpointDeviceError as exc:  # the checkpoint stays
+                        raise HarnessError(str(exc), "run the same command with that --device"
+                                           ) from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
                         raise
@@ -178,8 +194,9 @@ def execute(prepared: PreparedRun, store: Path,
 
 
 def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
-                checkpoint_interval: int) -> None:
+                checkpoint_interval: int, requested_device: str) -> None:
     spec = prepared.spec
+    device = resolve_device(requested_device, get_algorithm(spec.algo).gpu)
     _write_json(run_dir / "spec.json", prepared.resolved)
     started = time.time()
     started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -223,7 +240,7 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     ctx = TrainContext(env_id=spec.env_id, seed=spec.seed, total_steps=spec.total_steps,
                        eval_interval=spec.eval_interval, eval_episodes=spec.eval_episodes,
                        demos=prepared.demos, on_eval=on_eval, on_steps=on_steps,
-                       on_resume=on_resume,
+                       on_resume=on_resume, device=device,
                        checkpoint_path=run_dir / CHECKPOINT_FILE,
                        checkpoint_interval=checkpoint_interval)
     try:
@@ -239,7 +256,7 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
         "wall_time_s": round(wall, 3), "sittings": sittings,
         "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
         "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
-        "machine": provenance.machine(),
+        "machine": provenance.machine(), "device": describe_device(device),
         "demos": None if prepared.demos is None else {
             "sha256": prepared.demos.sha256, "path": prepared.resolved["demos_path"],
             "expert_return_mean": prepared.demos.mean_return,

@@ -26,6 +26,11 @@ def restore_env_rng(env: gym.Env, state: Any) -> None:
     env.unwrapped.np_random = copy.deepcopy(state)
 
 
+class CheckpointDeviceError(Exception):
+    """A checkpoint made on one kind of device met a run on another. Not a ValueError: the
+    checkpoint is fine, and the harness must keep it."""
+
+
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -39,7 +44,8 @@ def load_checkpoint(path: Path | None) -> dict[str, Any] | None:
     so it is unpickled in full (it holds numpy and dm-control random states)."""
     if path is None or not Path(path).is_file():
         return None
-    return torch.load(path, weights_only=False)
+    # on the CPU first: a checkpoint made on a GPU must open on a machine without one
+    return torch.load(path, weights_only=False, map_location="cpu")
 
 
 def due(step: int, last_checkpoint_step: int, interval: int) -> bool:

@@ -42,7 +42,8 @@ class TrainContext:
     eval_interval: int
     eval_episodes: int
     demos: DemoSet | None = None
-    device: str = "cpu"
+    device: str = "cpu"  # where an algorithm with a GPU path puts its tensors
+    cuda_graphs: bool = True  # on CUDA, replay each gradient step as one captured graph
     on_eval: Callable[[EvalPoint], None] = field(default=lambda point: None)
     on_steps: Callable[[int], None] = field(default=lambda n: None)  # progress, in env steps
     # Resume: where the algorithm keeps its checkpoint, and how many env steps apart (at

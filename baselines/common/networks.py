@@ -72,11 +72,15 @@ class TanhGaussianPolicy(nn.Module):
         mean, _ = self(obs)
         return self.action_bias + self.action_scale * torch.tanh(mean)
 
-    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None,
+               noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised action and its log-density; ``noise`` (standard normal, one row
+        per observation) is drawn from ``generator`` unless given."""
         mean, log_std = self(obs)
         std = log_std.exp()
-        noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype, device=mean.device)
+        if noise is None:
+            noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype,
+                                device=mean.device)
         pre_tanh = mean + std * noise
         gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
         # log(1 - tanh(u)^2) in a form that stays finite for large |u|

@@ -1,0 +1,103 @@
+"""Where an algorithm's tensors live, and its gradient step replayed as one CUDA graph.
+
+A small-network update on a GPU is bound by kernel launches, not arithmetic: about a hundred
+small kernels, each launched from Python. Captured once as a CUDA graph, the whole update
+(three losses, their backward passes, three Adam steps and the Polyak average) is replayed
+by one launch. On CPU the same body simply runs, so CPU curves stay bit for bit what they
+were.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+DEVICES = ("auto", "cpu", "cuda")
+GRAPH_WARMUP_UPDATES = 3  # eager updates before capture: optimiser state and cuBLAS set up
+
+
+class DeviceUnavailableError(RuntimeError):
+    pass
+
+
+def resolve_device(requested: str, has_gpu_path: bool) -> str:
+    """The device a run of an algorithm uses: ``auto`` takes the GPU when there is one and
+    the algorithm has a GPU path; ``cuda`` insists on a GPU (for those algorithms) and fails
+    without one; ``cpu`` never uses one. Algorithms without a GPU path always run on CPU."""
+    if requested not in DEVICES:
+        raise ValueError(f"unknown device '{requested}'; choose one of {', '.join(DEVICES)}")
+    if requested == "cuda" and not torch.cuda.is_available():
+        raise DeviceUnavailableError("--device cuda was asked for, but torch sees no CUDA GPU "
+                                     f"(torch {torch.__version__})")
+    if requested == "cpu" or not has_gpu_path:
+        return "cpu"
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def describe_device(device: str) -> str:
+    """``cpu``, or ``cuda`` with the GPU's name, for provenance."""
+    if device.startswith("cuda"):
+        return f"cuda ({torch.cuda.get_device_name(torch.device(device))})"
+    return device
+
+
+StepBody = Callable[..., dict[str, torch.Tensor]]
+
+
+class GraphedStep:
+    """Calls ``body(**inputs)``: eagerly on CPU (or with graphs off), and on CUDA as a graph
+    captured after a few eager calls and replayed on copies of the inputs.
+
+    ``body`` must take tensors of fixed shapes, draw no random numbers itself, and return
+    detached tensors; the returned tensors are overwritten by the next call.
+    """
+
+    def __init__(self, body: StepBody, device: torch.device, use_graph: bool = True):
+        self.body = body
+        self.device = device
+        self.use_graph = use_graph and device.type == "cuda"
+        self.calls = 0
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self.static_inputs: dict[str, torch.Tensor] = {}
+        self.static_outputs: dict[str, torch.Tensor] = {}
+
+    def __call__(self, **inputs: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Run the body on ``inputs``, which may live on the CPU or on the device."""
+        if not self.use_graph:
+            return self.body(**self._on_device(inputs))
+        self.calls += 1
+        if self.calls <= GRAPH_WARMUP_UPDATES:
+            # warm-up on a side stream, as CUDA graph capture requires; real updates
+            side = torch.cuda.Stream()
+            side.wait_stream(torch.cuda.current_stream())
+            with torch.cuda.stream(side):
+                outputs = self.body(**self._on_device(inputs))
+            torch.cuda.current_stream().wait_stream(side)
+            return outputs
+        if self.graph is None:
+            self._capture(self._on_device(inputs))
+        for name, value in inputs.items():
+            self.static_inputs[name].copy_(value, non_blocking=True)
+        self.graph.replay()
+        return self.static_outputs
+
+    def _on_device(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return {name: value.to(self.device, non_blocking=True) for name, value in inputs.items()}
+
+    def _capture(self, inputs: dict[str, torch.Tensor]) -> None:
+        """Record the body once (recording runs nothing); the caller then replays it."""
+        self.static_inputs = {name: value.clone() for name, value in inputs.items()}
+        self.graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(self.graph):
+            self.static_outputs = self.body(**self.static_inputs)
+
+
+def make_adam(params, lr: float, device: torch.device, fused_on_cpu: bool
+              ) -> torch.optim.Adam:
+    """Adam as the harness uses it: on CUDA fused and capturable (a replayed graph needs the
+    step count on the device); on CPU fused only where the algorithm always was, so that
+    CPU curves do not move."""
+    if device.type == "cuda":
+        return torch.optim.Adam(params, lr=lr, fused=True, capturable=True)
+    return torch.optim.Adam(params, lr=lr, fused=True if fused_on_cpu else None)
