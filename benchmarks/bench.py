@@ -36,7 +36,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from baselines.common.device import DEFAULT_GPU_WORKERS, worker_devices
+
 ENV_ID = "Hopper-v5"
+GPU_WORKER_COUNTS = (1, 2, 4)  # processes on the GPU in the machine job, the rest on CPU
 WARMUP = 1000  # env steps before the first update, as in the harness's SAC
 
 
@@ -224,6 +227,59 @@ def ppo_time_split(steps: int = 4096) -> dict[str, float]:
     return {name: round(seconds / total, 3) for name, seconds in split.items()}
 
 
+def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, float]:
+    """Where a harness SAC run's time goes: shares of its wall time, from timers wrapped
+    around the env step, the policy's action, the replay buffer and the gradient step (on a
+    GPU the gradient step is waited for, so that its GPU time is not billed to the next
+    action, which would wait for it anyway)."""
+    from baselines.common.buffer import ReplayBuffer
+    from baselines.common.context import TrainContext
+    from baselines.registry import get_algorithm
+    from baselines.sac import PolicyActor, SACAgent
+    from baselines.sac_twin_q import TwinQSACAgent
+    from envs import FlatFloat32Env
+
+    seconds = {"env step (MuJoCo and wrappers)": 0.0, "policy action per env step": 0.0,
+               "replay add and sample": 0.0, "gradient steps": 0.0}
+
+    def timed(owner: type, method: str, part: str, wait: bool = False):
+        original = getattr(owner, method)
+
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            result = original(*args, **kwargs)
+            if wait and device == "cuda":
+                torch.cuda.synchronize()
+            seconds[part] += time.perf_counter() - start
+            return result
+
+        return original, wrapper
+
+    patches = [(FlatFloat32Env, "step", "env step (MuJoCo and wrappers)", False),
+               (PolicyActor, "act", "policy action per env step", False),
+               (ReplayBuffer, "add", "replay add and sample", False),
+               (ReplayBuffer, "sample", "replay add and sample", False),
+               (SACAgent, "update", "gradient steps", True),
+               (TwinQSACAgent, "update", "gradient steps", True)]
+    originals = []
+    for owner, method, part, wait in patches:
+        original, wrapper = timed(owner, method, part, wait)
+        originals.append((owner, method, original))
+        setattr(owner, method, wrapper)
+    algorithm = get_algorithm(algo)
+    ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
+                       eval_episodes=1, device=device)
+    try:
+        start = time.perf_counter()
+        algorithm.train(ctx, algorithm.make_config({}))
+        total = time.perf_counter() - start
+    finally:
+        for owner, method, original in originals:
+            setattr(owner, method, original)
+    seconds["everything else (the loop, evaluations, set-up)"] = total - sum(seconds.values())
+    return {name: round(value / total, 3) for name, value in seconds.items()}
+
+
 def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None,
                             demos=None, device: str = "cpu", cuda_graphs: bool = True) -> float:
     """Env steps per second of a whole training run (updates from step 1000 on)."""
@@ -319,22 +375,40 @@ def sb3_ppo_steps_per_s(steps: int) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def _one_process(job: tuple[str, int, str]) -> float:
-    kind, steps, device = job
+_process_device = "cpu"  # a pool process's device, taken from the pool's list at its start
+
+
+def _start_process(devices) -> None:
+    """Pool initializer: take a device, and pay imports and CUDA start-up off the clock."""
+    global _process_device
+    _process_device = devices.get()
     torch.set_num_threads(1)
+    import stable_baselines3  # noqa: F401
+
+    import baselines.sac_twin_q  # noqa: F401
+    if _process_device == "cuda":
+        torch.zeros(1, device="cuda").sum().item()
+
+
+def _one_process(job: tuple[str, int]) -> float:
+    kind, steps = job
     if kind == "sb3":
-        return sb3_sac_steps_per_s(steps, device)
-    return harness_run_steps_per_s(kind, steps, device=device)
+        return sb3_sac_steps_per_s(steps, _process_device)
+    return harness_run_steps_per_s(kind, steps, device=_process_device)
 
 
 def machine_steps_per_s(kind: str, steps: int, processes: int, runs: int,
-                        device: str = "cpu") -> float:
-    """Total env steps per second of a ``runs``-seed SAC job on ``processes`` processes."""
-    with mp.get_context("spawn").Pool(processes) as pool:
-        # imports and CUDA start-up paid before the clock
-        pool.map(_one_process, [(kind, WARMUP + 10, device)] * processes)
+                        devices: list[str] | None = None) -> float:
+    """Total env steps per second of a ``runs``-seed SAC job on ``processes`` processes, the
+    k-th process on ``devices[k]`` (default: all on the CPU)."""
+    context = mp.get_context("spawn")
+    slots = context.Queue()
+    for device in devices or ["cpu"] * processes:
+        slots.put(device)
+    with context.Pool(processes, initializer=_start_process, initargs=(slots,)) as pool:
+        pool.map(time.sleep, [1.0] * processes, chunksize=1)  # every process started
         start = time.perf_counter()
-        pool.map(_one_process, [(kind, steps, device)] * runs, chunksize=1)
+        pool.map(_one_process, [(kind, steps)] * runs, chunksize=1)
         return runs * steps / (time.perf_counter() - start)
 
 
@@ -344,6 +418,7 @@ def median_of(repeats: int, measurements: dict[str, Callable[[], float]]) -> dic
     for _ in range(repeats):
         for name, measure in measurements.items():
             values[name].append(measure())
+            print(f"  {name}: {values[name][-1]:.3f}", flush=True)
     return {name: float(np.median(v)) for name, v in values.items()}
 
 
@@ -374,11 +449,23 @@ def gpu_measurements(steps: int, repeats: int) -> tuple[dict[str, float], list[t
         "gpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps, "cuda"),
         "cpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s("sac-twin-q", steps),
         "cpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps)}))
-    print(f"measuring the machine: {cores} seeds, harness on the GPU, SB3 one per core ...",
-          flush=True)
-    results["gpu_machine_harness_steps_per_s"] = machine_steps_per_s(
-        "sac-twin-q", steps, cores, cores, "cuda")
-    results["gpu_machine_sb3_cpu_steps_per_s"] = machine_steps_per_s("sb3", steps, cores, cores)
+    runs = 2 * cores  # two rounds: workers that finish early take more runs
+    print(f"measuring the machine: {runs} seeds on {cores} processes; SB3 and the harness on "
+          "the CPU cores, and the harness with some of its processes on the GPU ...", flush=True)
+    results["gpu_machine_sb3_cpu_steps_per_s"] = machine_steps_per_s("sb3", steps, cores, runs)
+    results["gpu_machine_harness_cpu_steps_per_s"] = machine_steps_per_s(
+        "sac-twin-q", steps, cores, runs)
+    for on_gpu in GPU_WORKER_COUNTS:
+        results[f"gpu_machine_harness_{on_gpu}_on_gpu_steps_per_s"] = machine_steps_per_s(
+            "sac-twin-q", steps, cores, runs, worker_devices("auto", cores, on_gpu))
+        print(f"  {on_gpu} on the GPU: "
+              f"{results[f'gpu_machine_harness_{on_gpu}_on_gpu_steps_per_s']:.0f} steps/s",
+              flush=True)
+    split = sac_time_split("sac-twin-q", steps, "cuda")
+    print("\nwhere a twin-Q SAC run on the GPU spends its time (share of wall time):")
+    for name, share in split.items():
+        print(f"  {name:48} {100 * share:5.1f}%")
+        results[f"gpu_twin_q_run_share {name}"] = share
     r = results
     rows = [
         ("GPU: one twin-Q SAC run / one SB3 SAC run, both on the GPU",
@@ -396,9 +483,15 @@ def gpu_measurements(steps: int, repeats: int) -> tuple[dict[str, float], list[t
         ("GPU: DRL-EG step time / V-SAC step time (1000 demos, T2 = 0.1)",
          r["gpu_harness_v_sac_steps_per_s"] / r["gpu_drl_eg_1k_steps_per_s"],
          "(whole runs; different trajectories)"),
-        (f"GPU machine, {cores} seeds: harness on the GPU / SB3 on {cores} cores",
-         r["gpu_machine_harness_steps_per_s"] / r["gpu_machine_sb3_cpu_steps_per_s"], ">= 1.5"),
+        (f"GPU machine, {runs} seeds: harness on {cores} cores / SB3 on {cores} cores",
+         r["gpu_machine_harness_cpu_steps_per_s"] / r["gpu_machine_sb3_cpu_steps_per_s"], ""),
     ]
+    for on_gpu in GPU_WORKER_COUNTS:
+        target = ">= 1.5" if on_gpu == DEFAULT_GPU_WORKERS else ""
+        rows.append((f"GPU machine, {runs} seeds: harness, {on_gpu} of {cores} processes on the "
+                     f"GPU / SB3 on {cores} cores",
+                     r[f"gpu_machine_harness_{on_gpu}_on_gpu_steps_per_s"]
+                     / r["gpu_machine_sb3_cpu_steps_per_s"], target))
     return results, rows
 
 
@@ -492,6 +585,7 @@ def main() -> None:
         "harness_ppo_steps_per_s": lambda: harness_run_steps_per_s("ppo", 4 * 2048),
         "sb3_ppo_steps_per_s": lambda: sb3_ppo_steps_per_s(4 * 2048)}))
     ppo_split = ppo_time_split()
+    sac_split = sac_time_split("sac-twin-q", steps)
     cores = os.cpu_count() or 1
     seeds = max(4, cores)
     print(f"measuring the machine: {seeds} seeds on {cores} processes ...", flush=True)
@@ -566,10 +660,14 @@ def main() -> None:
         "command": "nox -s bench", "hopper_steps_per_run": steps, "repeats": repeats,
         "measurements": results,
         "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
-        "twin_q_update_profile": profile_rows, "ppo_time_split": ppo_split}, indent=2) + "\n")
+        "twin_q_update_profile": profile_rows, "twin_q_run_time_split": sac_split,
+        "ppo_time_split": ppo_split}, indent=2) + "\n")
     print("\nwhere the harness's twin-Q SAC update spends its time (self CPU time):")
     for row in profile_rows:
         print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")
+    print("\nwhere the harness's twin-Q SAC run spends its time (share of wall time):")
+    for name, share in sac_split.items():
+        print(f"  {name:48} {100 * share:5.1f}%")
     print("\nwhere the harness's PPO run spends its time (share of wall time):")
     for name, share in ppo_split.items():
         print(f"  {name:40} {100 * share:5.1f}%")

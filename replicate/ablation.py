@@ -91,7 +91,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                            sigmas: list[float] | None = None, env_id: str = ABLATION_ENV,
                            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
                            executor: str = "local", address: str | None = None,
-                           device: str = "auto") -> Path:
+                           device: str = "auto", gpu_workers: int | None = None
+                           ) -> Path:
     """Run (or finish) the sweep and write its report; return the report's path."""
     import optuna
 
@@ -118,14 +119,15 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
 
     # SAC on the same seeds: what T2 = 0 must reproduce exactly.
     sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
-                           checkpoint_interval, executor, address, device)
+                           checkpoint_interval, executor, address, device, gpu_workers)
     failed = list(sac_outcome.failed)
 
     def objective(trial: Any) -> float:
         threshold = trial.suggest_categorical("guide_threshold", grid_t2)
         sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
         outcome = run_grid(ablation_specs(chosen, env_id, threshold, sigma, n_seeds), store,
-                           workers, checkpoint_interval, executor, address, device)
+                           workers, checkpoint_interval, executor, address, device,
+                           gpu_workers)
         failed.extend(outcome.failed)
         if not outcome.runs:
             raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",

@@ -34,9 +34,15 @@ DEVICE_HELP = ("where algorithms with a GPU path (SAC, twin-Q SAC, DRL-EG) train
                "Curves are reproducible bit for bit on CPU only")
 
 
-def _add_device_argument(parser: argparse.ArgumentParser) -> None:
+def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
     parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                        help=DEVICE_HELP)
+                        help=DEVICE_HELP + ("; a grid with --device cuda puts every worker on "
+                                            "the GPU" if grid else ""))
+    if grid:
+        parser.add_argument("--gpu-workers", type=int, default=None,
+                            help="with --device auto and a GPU: workers that train on it, the "
+                                 "others on the CPU cores (default 2: one GPU serves a few runs "
+                                 "at once)")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -131,7 +137,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
     fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
-    _add_device_argument(fig3)
+    _add_device_argument(fig3, grid=True)
     fig3.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig3.add_argument("--address", default=None,
@@ -156,7 +162,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
     fig4.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
-    _add_device_argument(fig4)
+    _add_device_argument(fig4, grid=True)
     fig4.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
@@ -183,7 +189,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="optuna storage URL (default: SQLite in the run store)")
     ablate.add_argument("--workers", type=int, default=None,
                         help="parallel training processes (default: one per core)")
-    _add_device_argument(ablate)
+    _add_device_argument(ablate, grid=True)
     ablate.add_argument("--executor", default="local", choices=["local", "ray"],
                         help="local processes, or tasks on a running Ray cluster (--address)")
     ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
@@ -299,7 +305,8 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     out = args.out or _default_out(args.profile)
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
                          workers=args.workers, checkpoint_interval=args.checkpoint_interval,
-                         executor=args.executor, address=args.address, device=args.device)
+                         executor=args.executor, address=args.address, device=args.device,
+                         gpu_workers=args.gpu_workers)
     print(f"report: {report}")
     return 0
 
@@ -315,7 +322,8 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
     report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
                          store=args.store, out_dir=args.out, workers=args.workers,
-                         executor=args.executor, address=args.address, device=args.device)
+                         executor=args.executor, address=args.address, device=args.device,
+                         gpu_workers=args.gpu_workers)
     print(f"report: {report}")
     return 0
 
@@ -327,7 +335,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     out_dir=args.out, storage=args.storage,
                                     workers=args.workers, thresholds=args.thresholds,
                                     sigmas=args.sigmas, executor=args.executor,
-                                    address=args.address, device=args.device)
+                                    address=args.address, device=args.device,
+                                    gpu_workers=args.gpu_workers)
     print(f"report: {report}")
     return 0
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from baselines.common.device import DEFAULT_GPU_WORKERS, worker_devices
 from replicate.errors import HarnessError
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
                               execute, is_complete, load_run, prepare)
@@ -158,14 +159,16 @@ ORPHANED_EXIT_CODE = 3
 
 
 _progress: Any = None  # a worker's end of the step-count queue, set when the worker starts
+_device = "cpu"  # the worker's device, taken from the grid's list when the worker starts
 
 
-def _init_worker(progress: Any) -> None:
-    global _progress
+def _init_worker(progress: Any, devices: Any) -> None:
+    global _progress, _device
     _progress = progress
+    _device = devices.get()
 
 
-def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int, device: str) -> str:
+def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
     """Train one run in a worker process, posting step counts to the progress queue."""
     progress = _progress
     pending = 0
@@ -183,7 +186,7 @@ def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int, device:
             pending = 0
 
     execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
-            device=device)
+            device=_device)
     progress.put(pending)
     return prepared.run_id
 
@@ -224,10 +227,13 @@ EXECUTORS = ("local", "ray")
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-             address: str | None = None, device: str = "auto") -> GridOutcome:
+             address: str | None = None, device: str = "auto",
+             gpu_workers: int | None = None) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
-    processes (one per core by default), or as tasks on an existing Ray cluster. ``device``
-    is each run's (``auto``: the GPU when there is one, for algorithms with a GPU path)."""
+    processes (one per core by default), or as tasks on an existing Ray cluster.
+    ``device``: ``cpu``; ``cuda``, every local worker on the GPU; ``auto``, with a GPU,
+    ``gpu_workers`` of them on it and the rest on the CPU (algorithms without a GPU path
+    always train on CPU)."""
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
@@ -238,9 +244,16 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     if executor == "ray":
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, device)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
+    try:
+        devices = worker_devices(device, workers, DEFAULT_GPU_WORKERS if gpu_workers is None
+                                 else gpu_workers)
+    except ValueError as exc:
+        raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
+    on_gpu = devices.count("cuda")
     total_steps = sum(p.spec.total_steps for p in missing)
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-          f"training {len(missing)} runs, {total_steps:,} env steps on {workers} worker(s); "
+          f"training {len(missing)} runs, {total_steps:,} env steps on {workers} worker(s)"
+          f"{f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
           f"estimated {estimate_minutes(missing, store, workers):.0f} min on this machine "
           "(from the speeds of the store's runs)", flush=True)
 
@@ -250,12 +263,16 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
         # a plain queue handed over at worker start: no manager process to outlive a kill
         progress = ctx.Queue()
+        device_slots = ctx.Queue()
+        for worker_device in devices:
+            device_slots.put(worker_device)
         with tqdm(total=total_steps, unit="step", dynamic_ncols=True, mininterval=1.0,
                   desc="training") as bar:
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                     initializer=_init_worker, initargs=(progress,)) as pool:
+                                     initializer=_init_worker,
+                                     initargs=(progress, device_slots)) as pool:
                 futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), checkpoint_interval, device): p
+                    pool.submit(_worker, p, str(store), checkpoint_interval): p
                     for p in missing}
                 pending = set(futures)
                 done_count = 0
@@ -288,7 +305,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
 def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
                 out_dir: Path = Path("reports/fig3"), workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None, device: str = "auto") -> Path:
+                address: str | None = None, device: str = "auto",
+                gpu_workers: int | None = None) -> Path:
     """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
     from replicate.report import write_figure3_report
 
@@ -296,7 +314,8 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     specs, skipped = figure3_grid(chosen, seeds)
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device)
+    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device,
+                       gpu_workers)
     outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
@@ -433,12 +452,13 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                 store: Path = Path("runs"), out_dir: Path | None = None,
                 workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None, device: str = "auto") -> Path:
+                address: str | None = None, device: str = "auto",
+                gpu_workers: int | None = None) -> Path:
     """Train what Fig. 4 lacks and write its report; return the report's path."""
     from replicate.report import write_figure4_report
 
     chosen = get_profile(profile)
     outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
-                       executor, address, device)
+                       executor, address, device, gpu_workers)
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_figure4_report(outcome, chosen, env_id, out_dir)

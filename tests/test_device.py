@@ -12,7 +12,7 @@ import torch
 
 from baselines.common.buffer import ReplayBuffer
 from baselines.common.checkpoint import save_checkpoint
-from baselines.common.device import DeviceUnavailableError, resolve_device
+from baselines.common.device import DeviceUnavailableError, resolve_device, worker_devices
 from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from replicate.cli import main
@@ -113,3 +113,15 @@ def test_runs_train_on_the_gpu_and_say_so(tmp_path):
     assert ppo.provenance["device"] == "cpu"  # no GPU path: it says where it really ran
     assert np.isfinite(sac.final_return)
     assert json.loads((sac.path / "provenance.json").read_text())["device"].startswith("cuda")
+
+
+def test_a_grid_with_a_gpu_keeps_a_few_workers_on_it_and_the_rest_on_the_cpu(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert worker_devices("auto", 6, 2) == ["cuda", "cuda", "cpu", "cpu", "cpu", "cpu"]
+    assert worker_devices("auto", 1, 2) == ["cuda"]
+    assert worker_devices("cuda", 3, 1) == ["cuda"] * 3  # asked for: every worker
+    assert worker_devices("cpu", 2, 2) == ["cpu"] * 2
+    with pytest.raises(ValueError, match=">= 0"):
+        worker_devices("auto", 2, -1)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert worker_devices("auto", 3, 2) == ["cpu"] * 3
