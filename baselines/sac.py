@@ -238,7 +238,8 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
 
     def save(step: int) -> None:
         save_checkpoint(ctx.checkpoint_path, {
-            "step": step, "device": agent.device.type, "agent": agent.state_dict(), "explorer": explorer.state_dict(),
+            "step": step, "device": agent.device.type, "agent": agent.state_dict(),
+            "explorer": explorer.state_dict(),
             "buffer": buffer.state_dict(), "batch_rng": batch_rng, "curve": curve,
             "counters": (guided_steps, steps_since_eval, best_return),
             "env_rng": env_rng_state(env), "eval_env_rng": env_rng_state(eval_env)})
@@ -284,7 +285,8 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
             for _ in range(cfg.gradient_steps):
                 losses = agent.update(buffer.sample(cfg.batch_size, batch_rng))
             # reading a loss waits for the GPU, so it is read every hundred steps
-            if step % DIVERGENCE_CHECK_INTERVAL == 0 and not math.isfinite(losses["q_loss"]):
+            look = step % DIVERGENCE_CHECK_INTERVAL == 0 or step == ctx.total_steps
+            if look and not math.isfinite(losses["q_loss"]):
                 raise FloatingPointError(f"SAC diverged at step {step}: losses "
                                          f"{ {name: float(v) for name, v in losses.items()} }")
 

@@ -16,7 +16,12 @@ gradient step per env step after 1000 steps from the initial policy):
 - DRL-EG's guidance: what D(s) and G(s) add to an env step, with 1000 and with 1,000,000
   demonstrations, and whole DRL-EG runs beside SAC runs;
 - the harness's PPO against SB3's PPO (2048-step rollouts, 10 epochs, minibatch 64, 2x64);
-- the machine: a four-seed job on one process per core, harness and SB3.
+- the machine: a four-seed job on one process per core, harness and SB3;
+- where a twin-Q SAC run's time goes (env, policy action, replay, gradient steps).
+
+With a CUDA GPU the GPU path is measured too (``--gpu-only`` measures it alone, into
+``reports/bench/bench_gpu.json``): graphed against eager updates, whole runs against SB3 on
+the same GPU and on one core, and a job of two seeds per core with some processes on the GPU.
 
 Whole-run speeds move by 5-15% between repetitions on a shared machine, so each is the
 median of ``--repeats`` runs, interleaved so that a slow spell hits every contender.
@@ -62,7 +67,7 @@ def bench_env(steps: int) -> dict[str, float]:
     from envs import make_env
 
     raw, adapter = [], []
-    for _ in range(3):  # interleaved, best of three: warm-up and noise hit both alike
+    for _ in range(5):  # interleaved, best of five: warm-up and noise hit both alike
         raw.append(env_steps_per_s(lambda: gym.make(ENV_ID), steps))
         adapter.append(env_steps_per_s(lambda: make_env(ENV_ID), steps))
     return {"raw_env_steps_per_s": max(raw), "adapter_env_steps_per_s": max(adapter)}

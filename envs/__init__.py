@@ -78,6 +78,7 @@ class FlatFloat32Env(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self)
         gym.Wrapper.__init__(self, env)
         self._inner_obs_space = env.observation_space
+        self._inner_is_box = isinstance(env.observation_space, gym.spaces.Box)
         flat = gym.spaces.flatten_space(env.observation_space)
         self.observation_space = gym.spaces.Box(
             low=flat.low.astype(np.float32), high=flat.high.astype(np.float32), dtype=np.float32
@@ -91,6 +92,8 @@ class FlatFloat32Env(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
 
     def _flat(self, obs) -> np.ndarray:
+        if self._inner_is_box:  # one cast: the same values as flatten, then a cast
+            return np.array(obs, dtype=np.float32).reshape(-1)  # a copy, as flatten makes
         return np.asarray(gym.spaces.flatten(self._inner_obs_space, obs), dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

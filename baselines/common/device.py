@@ -37,8 +37,9 @@ def resolve_device(requested: str, has_gpu_path: bool) -> str:
 
 # Concurrent runs one GPU serves well: a run's graphed update is ~100 small kernels, and the
 # kernels of several processes take turns on the GPU instead of sharing it. Measured on an
-# H100 (reports/bench/bench_gpu.json): one run alone 800 env steps/s, sixteen at once 1300
-# in all; so a grid keeps a few workers on the GPU and the rest on the CPU cores.
+# H100 with 16 cores (reports/bench/bench_gpu.json, Hopper twin-Q SAC): one run alone 822
+# env steps/s; 16 seeds on 16 processes, all on the GPU, 1318 in all (an earlier bench run);
+# 32 seeds on 16 processes with 0, 1, 2 or 4 of them on the GPU 1541, 1689, 2015 and 1930.
 DEFAULT_GPU_WORKERS = 2
 
 
