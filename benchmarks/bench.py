@@ -34,6 +34,7 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -520,7 +521,8 @@ def main_gpu(args: argparse.Namespace) -> None:
     out.write_text(json.dumps({
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "gpu": torch.cuda.get_device_name(), "torch": torch.__version__},
-        "command": "nox -s bench -- --gpu-only", "hopper_steps_per_run": args.steps,
+        "command": " ".join(["benchmarks/bench.py", *sys.argv[1:]]),
+        "hopper_steps_per_run": args.steps,
         "repeats": args.repeats, "measurements": results,
         "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows]}, indent=2) + "\n")
     print(f"\nwritten: {out} ({results['bench_wall_s']:.0f} s)")
