@@ -242,7 +242,10 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
     if executor == "ray":
-        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, device)
+        # Ray places one run per CPU; all of a node's runs on its GPU would queue behind
+        # each other there (bench_gpu.json), so "auto" trains on the CPUs of a cluster
+        ray_device = "cpu" if device == "auto" else device
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, ray_device)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
     try:
         devices = worker_devices(device, workers, DEFAULT_GPU_WORKERS if gpu_workers is None
