@@ -28,7 +28,6 @@ def _parse_overrides(pairs: list[str]) -> dict:
     return overrides
 
 
-
 DEVICE_HELP = ("where algorithms with a GPU path (SAC, twin-Q SAC, DRL-EG) train: auto takes "
                "the GPU when torch sees one; cuda fails without one. The others train on CPU. "
                "Curves are reproducible bit for bit on CPU only")

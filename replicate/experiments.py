@@ -233,7 +233,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     processes (one per core by default), or as tasks on an existing Ray cluster.
     ``device``: ``cpu``; ``cuda``, every local worker on the GPU; ``auto``, with a GPU,
     ``gpu_workers`` of them on it and the rest on the CPU (algorithms without a GPU path
-    always train on CPU)."""
+    always train on CPU). On Ray, ``auto`` trains on CPUs and ``cuda`` on each node's GPU."""
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
