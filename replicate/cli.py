@@ -376,7 +376,10 @@ def _cmd_algos(args: argparse.Namespace) -> int:
     from baselines.registry import algorithms
 
     for name, algo in sorted(algorithms().items()):
-        print(f"{name}: {algo.summary}{' (uses demonstrations)' if algo.needs_demos else ''}")
+        notes = [note for note, applies in (("uses demonstrations", algo.needs_demos),
+                                            ("GPU path", algo.gpu)) if applies]
+        suffix = f" ({', '.join(notes)})" if notes else ""
+        print(f"{name}: {algo.summary}{suffix}")
         for f in dataclasses.fields(algo.config_cls):
             print(f"    {f.name} = {f.default!r}")
     return 0

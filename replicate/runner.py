@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError
 from baselines.common.context import EvalPoint, TrainContext
@@ -181,6 +182,11 @@ def execute(prepared: PreparedRun, store: Path,
                     except CheckpointDeviceError as exc:  # the checkpoint stays
                         raise HarnessError(str(exc), "run the same command with that --device"
                                            ) from None
+                    except torch.OutOfMemoryError:  # the GPU may be freer next time: keep it
+                        raise HarnessError(
+                            f"run {prepared.run_id} ran out of GPU memory; its last "
+                            "checkpoint is kept", "run the same command again with fewer "
+                            "--gpu-workers, or with --device cpu") from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
                         raise

@@ -125,3 +125,16 @@ def test_a_grid_with_a_gpu_keeps_a_few_workers_on_it_and_the_rest_on_the_cpu(mon
         worker_devices("auto", 2, -1)
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     assert worker_devices("auto", 3, 2) == ["cpu"] * 3
+
+
+def test_running_out_of_gpu_memory_keeps_the_run_to_resume(tmp_path, monkeypatch):
+    import baselines.sac
+
+    def out_of_memory(*args, **kwargs):
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 MiB")
+
+    monkeypatch.setattr(baselines.sac, "run_off_policy", out_of_memory)
+    prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 120, 60, 1, dict(TINY)))
+    with pytest.raises(HarnessError, match="ran out of GPU memory"):
+        execute(prepared, tmp_path, device="cpu")
+    assert partial_directory(prepared, tmp_path).is_dir()  # not removed as a code error

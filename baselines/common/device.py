@@ -61,7 +61,8 @@ def worker_devices(requested: str, workers: int, gpu_workers: int = DEFAULT_GPU_
 def describe_device(device: str) -> str:
     """``cpu``, or ``cuda`` with the GPU's name, for provenance."""
     if device.startswith("cuda"):
-        return f"cuda ({torch.cuda.get_device_name(torch.device(device))})"
+        return (f"cuda ({torch.cuda.get_device_name(torch.device(device))}, "
+                f"CUDA {torch.version.cuda})")
     return device
 
 
