@@ -30,6 +30,7 @@ median of ``--repeats`` runs, interleaved so that a slow spell hits every conten
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import multiprocessing as mp
 import os
@@ -301,6 +302,7 @@ def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None
     return steps / (time.perf_counter() - start)
 
 
+@functools.lru_cache(maxsize=2)  # built once per size: the 1M set serves two measurements
 def hopper_demos(n_pairs: int):
     """The committed Hopper demonstrations, and for more pairs than they hold, copies of their
     states with small noise: a huge demonstration set along the expert's own trajectory."""
