@@ -17,6 +17,7 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     assert image and len(image.group(1)) > 1000
     assert "http://" not in html and "https://" not in html  # nothing fetched at view time
     assert "not judged (smoke profile" in html
+    assert "<th>Device</th>" in html and "<td>cpu</td>" in html  # where each run trained
     summary = json.loads((out / "summary.json").read_text())
     assert {f["algo"] for f in summary["final_returns"]} == set(FIG3_ALGORITHMS)
     assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) and not summary["failed"]
