@@ -203,7 +203,7 @@ class PolicyExplorer:
         pass
 
 
-DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the critic loss
+DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the critic loss on a GPU
 
 
 def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer) -> ReplayBuffer:
@@ -284,8 +284,10 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         if step >= cfg.learning_starts:
             for _ in range(cfg.gradient_steps):
                 losses = agent.update(buffer.sample(cfg.batch_size, batch_rng))
-            # reading a loss waits for the GPU, so it is read every hundred steps
-            look = step % DIVERGENCE_CHECK_INTERVAL == 0 or step == ctx.total_steps
+            # on a GPU reading a loss stalls the CPU until the update is done, so that the
+            # env step cannot overlap it: there the loss is read every hundred steps
+            look = (agent.device.type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0
+                    or step == ctx.total_steps)
             if look and not math.isfinite(losses["q_loss"]):
                 raise FloatingPointError(f"SAC diverged at step {step}: losses "
                                          f"{ {name: float(v) for name, v in losses.items()} }")

@@ -35,13 +35,14 @@ DEVICE_HELP = ("where algorithms with a GPU path (SAC, twin-Q SAC, DRL-EG) train
 
 def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
     parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                        help=DEVICE_HELP + ("; a grid with --device cuda puts every worker on "
-                                            "the GPU" if grid else ""))
+                        help=DEVICE_HELP)
     if grid:
         parser.add_argument("--gpu-workers", type=int, default=None,
-                            help="with --device auto and a GPU: workers that train on it, the "
-                                 "others on the CPU cores (default 2: one GPU serves a few runs "
-                                 "at once)")
+                            help="with --device auto and a GPU: only this many workers train "
+                                 "on it, the others on the CPU cores. One GPU serves about two "
+                                 "runs at once, so 2 is faster on a many-core machine, but "
+                                 "which runs land on the GPU then depends on scheduling "
+                                 "(default: every worker on the GPU)")
 
 
 def _build_parser() -> argparse.ArgumentParser:

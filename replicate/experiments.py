@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from baselines.common.device import DEFAULT_GPU_WORKERS, worker_devices
+from baselines.common.device import worker_devices
 from replicate.errors import HarnessError
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
                               execute, is_complete, load_run, prepare)
@@ -168,7 +168,8 @@ def _init_worker(progress: Any, devices: Any) -> None:
     _device = devices.get()
 
 
-def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
+def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int,
+            follow_checkpoint: bool) -> str:
     """Train one run in a worker process, posting step counts to the progress queue."""
     progress = _progress
     pending = 0
@@ -186,7 +187,7 @@ def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int) -> str:
             pending = 0
 
     execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
-            device=_device)
+            device=_device, follow_checkpoint=follow_checkpoint)
     progress.put(pending)
     return prepared.run_id
 
@@ -231,25 +232,27 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              gpu_workers: int | None = None) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
-    ``device``: ``cpu``; ``cuda``, every local worker on the GPU; ``auto``, with a GPU,
-    ``gpu_workers`` of them on it and the rest on the CPU (algorithms without a GPU path
-    always train on CPU). On Ray, ``auto`` trains on CPUs and ``cuda`` on each node's GPU."""
+    ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
+    with a GPU path; the others always train on CPU. ``gpu_workers`` (with ``auto``) keeps
+    only that many local workers on the GPU: see ``worker_devices``. On Ray, ``auto`` trains
+    on CPUs; ``cuda`` is refused there."""
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
-        check_device(device)  # on Ray, each node judges its own
+        check_device(device)
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
     if executor == "ray":
-        # Ray places one run per CPU; all of a node's runs on its GPU would queue behind
-        # each other there (bench_gpu.json), so "auto" trains on the CPUs of a cluster
-        ray_device = "cpu" if device == "auto" else device
-        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, ray_device)
+        # Ray places one run per CPU and hands its tasks no GPU unless asked; all of a
+        # node's runs on its GPU would also queue there (bench_gpu.json): CPUs it is
+        if device == "cuda":
+            raise HarnessError("--device cuda is not supported with --executor ray",
+                               "pass --device auto (the cluster's CPUs), or train locally")
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
     try:
-        devices = worker_devices(device, workers, DEFAULT_GPU_WORKERS if gpu_workers is None
-                                 else gpu_workers)
+        devices = worker_devices(device, workers, gpu_workers)
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
     on_gpu = devices.count("cuda")
@@ -275,7 +278,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                                      initializer=_init_worker,
                                      initargs=(progress, device_slots)) as pool:
                 futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), checkpoint_interval): p
+                    pool.submit(_worker, p, str(store), checkpoint_interval,
+                                device == "auto"): p
                     for p in missing}
                 pending = set(futures)
                 done_count = 0

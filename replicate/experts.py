@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from baselines.common.checkpoint import save_checkpoint
+from baselines.common.checkpoint import CheckpointDeviceError, save_checkpoint
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, resolve_device
 from baselines.common.networks import TanhGaussianPolicy
@@ -117,6 +117,10 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     algorithm = get_algorithm(algo)
     check_device(device)
     resolved_device = resolve_device(device, algorithm.gpu)
+    saved_on = "cuda" if str(previous.get("device", "cpu")).startswith("cuda") else "cpu"
+    if (work / "checkpoint.pt").is_file() and saved_on != resolved_device and device == "auto" \
+            and (saved_on == "cpu" or torch.cuda.is_available()):
+        resolved_device = saved_on  # resume where the checkpoint was made
     # one expert alone on a machine may use every core for its matrix products
     config = algorithm.make_config({"torch_threads": threads})
     ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
@@ -124,7 +128,15 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
                        checkpoint_path=work / "checkpoint.pt",
                        checkpoint_interval=checkpoint_interval,
                        best_policy_path=work / "best_policy.pt", device=resolved_device)
-    algorithm.train(ctx, config)
+    try:
+        algorithm.train(ctx, config)
+    except CheckpointDeviceError as exc:
+        raise HarnessError(str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
+                           ) from None
+    except torch.OutOfMemoryError:
+        raise HarnessError(f"the {env_id} expert ran out of GPU memory; its last checkpoint "
+                           "is kept", "run the same command again, or with --device cpu"
+                           ) from None
     (work / "checkpoint.pt").unlink(missing_ok=True)  # finished: the buffer is not needed
     return export_expert(env_id, root)
 
@@ -155,7 +167,11 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
                    + ("" if progress.get("torch_threads", 1) == 1
                       else f" --threads {progress['torch_threads']}"),
         "git_revision": provenance.git_revision(),
+        "device": progress.get("device", "cpu"),
     }
+    # CPU training reproduces bit for bit; the command names the device it ran on
+    metadata["command"] += " --device " + ("cuda" if metadata["device"].startswith("cuda")
+                                           else "cpu")
     # half precision halves the committed file; demonstrations are rolled out from these
     # rounded weights, so the files and the returns they record agree
     metadata["weights_dtype"] = "float16"

@@ -152,10 +152,15 @@ def check_device(requested: str) -> None:
 
 def execute(prepared: PreparedRun, store: Path,
             on_steps: Callable[[int], None] = lambda n: None,
-            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto") -> Run:
+            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
+            follow_checkpoint: bool | None = None) -> Run:
     """Train ``prepared`` into the store unless a complete run with its address exists;
     resume it from its checkpoint if an earlier attempt was interrupted. ``device``: ``auto``
-    (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``."""
+    (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``. A
+    checkpoint made on the other kind of device is resumed there when ``follow_checkpoint``
+    (default: when ``device`` is ``auto``), and refused otherwise."""
+    if follow_checkpoint is None:
+        follow_checkpoint = device == "auto"
     check_device(device)
     store = Path(store)
     final_dir = prepared.directory(store)
@@ -178,10 +183,11 @@ def execute(prepared: PreparedRun, store: Path,
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
                     try:
-                        _train_into(prepared, work_dir, on_steps, checkpoint_interval, device)
+                        _train_into(prepared, work_dir, on_steps, checkpoint_interval, device,
+                                    follow_checkpoint)
                     except CheckpointDeviceError as exc:  # the checkpoint stays
-                        raise HarnessError(str(exc), "run the same command with that --device"
-                                           ) from None
+                        raise HarnessError(str(exc), "run it on the device its checkpoint "
+                                           "names, or delete its directory") from None
                     except torch.OutOfMemoryError:  # the GPU may be freer next time: keep it
                         raise HarnessError(
                             f"run {prepared.run_id} ran out of GPU memory; its last "
@@ -199,15 +205,35 @@ def execute(prepared: PreparedRun, store: Path,
     return load_run(final_dir)
 
 
+def _checkpoint_device(run_dir: Path, earlier_sittings: list[dict]) -> str | None:
+    """``cpu`` or ``cuda``: where the run's checkpoint was made (by its last sitting, since a
+    sitting only resumes a checkpoint of its own kind); None without a checkpoint. Sittings
+    from before the GPU path name no device: they ran on CPU."""
+    if not (run_dir / CHECKPOINT_FILE).is_file():
+        return None
+    last = earlier_sittings[-1].get("device", "cpu") if earlier_sittings else "cpu"
+    return "cuda" if last.startswith("cuda") else "cpu"
+
+
 def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
-                checkpoint_interval: int, requested_device: str) -> None:
+                checkpoint_interval: int, requested_device: str,
+                follow_checkpoint: bool) -> None:
     spec = prepared.spec
     device = resolve_device(requested_device, get_algorithm(spec.algo).gpu)
+    sittings_path = run_dir / SITTINGS_FILE
+    earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
+    saved_on = _checkpoint_device(run_dir, earlier)
+    if saved_on is not None and saved_on != device:  # before anything in run_dir is touched
+        if follow_checkpoint and (saved_on == "cpu" or torch.cuda.is_available()):
+            device = saved_on  # the noise streams of CPU and CUDA differ in kind
+        else:
+            raise CheckpointDeviceError(
+                f"run {prepared.run_id} has a checkpoint made on {saved_on}, and this run "
+                f"would train on {device}; resume it with --device {saved_on} (or auto), or "
+                f"delete {run_dir} to start over")
     _write_json(run_dir / "spec.json", prepared.resolved)
     started = time.time()
     started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    sittings_path = run_dir / SITTINGS_FILE
-    earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
     resumed_from = 0
 
     def on_resume(step: int) -> None:
@@ -217,7 +243,8 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     def record_sitting() -> None:
         sittings = earlier + [{"started_utc": started_iso, "resumed_from_step": resumed_from,
                                "wall_time_s": round(time.time() - started, 3),
-                               "git_revision": provenance.code_revision()}]
+                               "git_revision": provenance.code_revision(),
+                               "device": describe_device(device)}]
         sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
 
     # The curve is rewritten whole: a resumed algorithm re-emits the points it had, which

@@ -4,6 +4,7 @@ The tests marked ``cuda`` run only where torch sees a GPU (never in CI); the res
 CPU what a user without a GPU meets.
 """
 
+import dataclasses
 import json
 
 import numpy as np
@@ -17,7 +18,8 @@ from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from replicate.cli import main
 from replicate.errors import HarnessError
-from replicate.runner import CHECKPOINT_FILE, execute, partial_directory, prepare
+from replicate.runner import (CHECKPOINT_FILE, CURVE_COLUMNS, execute, partial_directory,
+                              prepare)
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
@@ -58,13 +60,18 @@ def test_provenance_names_the_device(tmp_path):
     assert run.provenance["device"] == "cpu"
 
 
-def test_a_checkpoint_from_another_device_is_refused_and_kept(tmp_path):
-    prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
-    checkpoint = partial_directory(prepared, tmp_path) / CHECKPOINT_FILE
+def test_the_training_loop_refuses_a_checkpoint_of_the_other_device(tmp_path):
+    from baselines.common.checkpoint import CheckpointDeviceError
+    from baselines.common.context import TrainContext
+    from baselines.registry import get_algorithm
+
+    checkpoint = tmp_path / "checkpoint.pt"
     save_checkpoint(checkpoint, {"step": 200, "device": "cuda"})
-    with pytest.raises(HarnessError, match="made on cuda"):
-        execute(prepared, tmp_path, device="cpu")
-    assert checkpoint.is_file()  # the run's progress is not thrown away
+    algorithm = get_algorithm("sac")
+    ctx = TrainContext(env_id=MOUNTAINCAR, seed=0, total_steps=400, eval_interval=100,
+                       eval_episodes=1, checkpoint_path=checkpoint, checkpoint_interval=100)
+    with pytest.raises(CheckpointDeviceError, match="made on cuda"):
+        algorithm.train(ctx, algorithm.make_config(dict(TINY)))
 
 
 def _agents(kind: str, device: str):
@@ -115,8 +122,9 @@ def test_runs_train_on_the_gpu_and_say_so(tmp_path):
     assert json.loads((sac.path / "provenance.json").read_text())["device"].startswith("cuda")
 
 
-def test_a_grid_with_a_gpu_keeps_a_few_workers_on_it_and_the_rest_on_the_cpu(monkeypatch):
+def test_grid_workers_use_one_device_unless_the_gpu_ones_are_limited(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert worker_devices("auto", 3) == ["cuda"] * 3  # a run's device: its algorithm's
     assert worker_devices("auto", 6, 2) == ["cuda", "cuda", "cpu", "cpu", "cpu", "cpu"]
     assert worker_devices("auto", 1, 2) == ["cuda"]
     assert worker_devices("cuda", 3, 1) == ["cuda"] * 3  # asked for: every worker
@@ -127,14 +135,47 @@ def test_a_grid_with_a_gpu_keeps_a_few_workers_on_it_and_the_rest_on_the_cpu(mon
     assert worker_devices("auto", 3, 2) == ["cpu"] * 3
 
 
-def test_running_out_of_gpu_memory_keeps_the_run_to_resume(tmp_path, monkeypatch):
-    import baselines.sac
+def _interrupted_run(store, sitting_device: str):
+    """A run whose hidden directory holds a checkpoint made by a sitting on ``sitting_device``."""
+    prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
+    work = partial_directory(prepared, store)
+    save_checkpoint(work / CHECKPOINT_FILE, {"step": 200, "device": sitting_device})
+    (work / "sittings.json").write_text(json.dumps([{
+        "started_utc": "2026-11-26T00:00:00+00:00", "resumed_from_step": 0, "wall_time_s": 1.0,
+        "git_revision": "x", "device": sitting_device}]))
+    (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,0.5\n")
+    return prepared, work
 
-    def out_of_memory(*args, **kwargs):
-        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 MiB")
 
-    monkeypatch.setattr(baselines.sac, "run_off_policy", out_of_memory)
-    prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 120, 60, 1, dict(TINY)))
-    with pytest.raises(HarnessError, match="ran out of GPU memory"):
-        execute(prepared, tmp_path, device="cpu")
-    assert partial_directory(prepared, tmp_path).is_dir()  # not removed as a code error
+def test_a_resume_follows_its_checkpoint_under_auto_and_is_refused_otherwise(tmp_path,
+                                                                            monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    prepared, work = _interrupted_run(tmp_path, "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)")
+    # no GPU here: the CUDA checkpoint cannot be followed, whatever was asked
+    for device in ("auto", "cpu"):
+        with pytest.raises(HarnessError, match="made on cuda"):
+            execute(prepared, tmp_path, device=device)
+        assert (work / CHECKPOINT_FILE).is_file()  # the run's progress is not thrown away
+        assert "0,1.0,0,1.0" in (work / "curve.csv").read_text()  # nor its curve
+
+
+def test_a_cpu_checkpoint_is_resumed_on_cpu_by_a_gpu_worker_under_auto(tmp_path, monkeypatch):
+    import baselines.registry
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    prepared, _ = _interrupted_run(tmp_path, "cpu")
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def record_device(ctx, config):
+        seen["device"] = ctx.device
+        raise Stop  # nothing is trained: only the choice of device is under test
+
+    algorithm = baselines.registry.get_algorithm("sac")
+    monkeypatch.setitem(baselines.registry._REGISTRY, "sac",
+                        dataclasses.replace(algorithm, train=record_device))
+    with pytest.raises(Stop):
+        execute(prepared, tmp_path, device="cuda", follow_checkpoint=True)
+    assert seen["device"] == "cpu"

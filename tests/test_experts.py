@@ -66,7 +66,9 @@ def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     path = experts.train_expert(ENV, steps=200, root=root, eval_interval=100, algo="sac-twin-q")
     policy = experts.ExpertPolicy(ENV, path)
     assert policy.metadata["algo"] == "sac-twin-q"
-    assert policy.metadata["command"].endswith("--algo sac-twin-q")  # not Hopper's default
+    assert "--algo sac-twin-q" in policy.metadata["command"]  # not Hopper's default
+    assert policy.metadata["command"].endswith("--device cpu")  # where it trained
+    assert policy.metadata["device"] == "cpu"
     assert "initial_alpha" in policy.metadata["hyperparameters"]
     assert np.all(np.isfinite(policy(np.zeros(11))))
     with pytest.raises(HarnessError, match="expert run of sac-twin-q"):

@@ -35,25 +35,25 @@ def resolve_device(requested: str, has_gpu_path: bool) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-# Concurrent runs one GPU serves well: a run's graphed update is ~100 small kernels, and the
-# kernels of several processes take turns on the GPU instead of sharing it. Measured on an
-# H100 with 16 cores (reports/bench/bench_gpu.json, Hopper twin-Q SAC): one run alone 822
-# env steps/s; 16 seeds on 16 processes, all on the GPU, 1318 in all (an earlier bench run);
-# 32 seeds on 16 processes with 0, 1, 2 or 4 of them on the GPU 1541, 1689, 2015 and 1930.
-DEFAULT_GPU_WORKERS = 2
-
-
-def worker_devices(requested: str, workers: int, gpu_workers: int = DEFAULT_GPU_WORKERS
+def worker_devices(requested: str, workers: int, gpu_workers: int | None = None
                    ) -> list[str]:
-    """The device of each of ``workers`` local processes of a grid: ``cuda`` puts every one
-    on the GPU, ``auto`` (with a GPU) the first ``gpu_workers`` and the rest on the CPU."""
-    if gpu_workers < 0:
+    """The device of each of ``workers`` local processes of a grid: every one on the device
+    ``requested`` resolves to, unless ``gpu_workers`` limits those on the GPU (with ``auto``),
+    the rest training on the CPU cores.
+
+    The limit trades reproducibility for throughput: one GPU serves about two runs at once,
+    since the small kernels of several processes take turns on it. Measured on an H100 with
+    16 cores (reports/bench/bench_gpu.json, Hopper twin-Q SAC): one run alone 822 env steps/s;
+    16 seeds on 16 processes all on the GPU 1318 in all; 32 seeds on 16 processes with 0, 1,
+    2 or 4 of them on the GPU 1541, 1689, 2015 and 1930. But with a limit, which runs land on
+    the GPU depends on scheduling, so runs compared bit for bit (Fig. 4's identical start,
+    the ablation's T2 = 0 against SAC) may then differ.
+    """
+    if gpu_workers is not None and gpu_workers < 0:
         raise ValueError(f"the number of GPU workers must be >= 0, got {gpu_workers}")
     device = resolve_device(requested, has_gpu_path=True)
-    if device == "cpu":
-        return ["cpu"] * workers
-    if requested == "cuda":
-        return ["cuda"] * workers
+    if device == "cpu" or gpu_workers is None or requested == "cuda":
+        return [device] * workers
     on_gpu = min(gpu_workers, workers)
     return ["cuda"] * on_gpu + ["cpu"] * (workers - on_gpu)
 
