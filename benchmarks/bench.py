@@ -512,24 +512,33 @@ def print_table(rows: list[tuple]) -> None:
         print(f"{name:66} {value:9.3f}  {target}")
 
 
+def report(out: Path, command: str, steps: int, repeats: int, results: dict[str, float],
+           rows: list[tuple], **extra) -> None:
+    """Print the ratios and the raw measurements, and write them, with the machine, to ``out``."""
+    print_table(rows)
+    print("\nraw measurements:")
+    for name, value in results.items():
+        print(f"  {name:52} {value:12.3f}")
+    machine = {"platform": platform.platform(), "cpus": os.cpu_count() or 1,
+               "torch": torch.__version__}
+    if torch.cuda.is_available():
+        machine["gpu"] = torch.cuda.get_device_name()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "machine": machine, "command": command, "hopper_steps_per_run": steps,
+        "repeats": repeats, "measurements": results,
+        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows], **extra},
+        indent=2) + "\n")
+
+
 def main_gpu(args: argparse.Namespace) -> None:
     """``--gpu-only``: the GPU section alone, into its own file."""
     began = time.perf_counter()
     results, rows = gpu_measurements(args.steps, args.repeats)
     results["bench_wall_s"] = time.perf_counter() - began
-    print_table(rows)
-    print("\nraw measurements:")
-    for name, value in results.items():
-        print(f"  {name:52} {value:12.3f}")
     out = args.out.with_name("bench_gpu.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "gpu": torch.cuda.get_device_name(), "torch": torch.__version__},
-        "command": " ".join(["benchmarks/bench.py", *sys.argv[1:]]),
-        "hopper_steps_per_run": args.steps,
-        "repeats": args.repeats, "measurements": results,
-        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows]}, indent=2) + "\n")
+    report(out, " ".join(["benchmarks/bench.py", *sys.argv[1:]]), args.steps, args.repeats,
+           results, rows)
     print(f"\nwritten: {out} ({results['bench_wall_s']:.0f} s)")
 
 
@@ -661,19 +670,9 @@ def main() -> None:
         results.update(gpu_results)
         rows += gpu_rows
     results["bench_wall_s"] = time.perf_counter() - began
-    print_table(rows)
-    print("\nraw measurements:")
-    for name, value in results.items():
-        print(f"  {name:52} {value:12.3f}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
-        "machine": {"platform": platform.platform(), "cpus": cores,
-                    "torch": torch.__version__},
-        "command": "nox -s bench", "hopper_steps_per_run": steps, "repeats": repeats,
-        "measurements": results,
-        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
-        "twin_q_update_profile": profile_rows, "twin_q_run_time_split": sac_split,
-        "ppo_time_split": ppo_split}, indent=2) + "\n")
+    report(args.out, "nox -s bench", steps, repeats, results, rows,
+           twin_q_update_profile=profile_rows, twin_q_run_time_split=sac_split,
+           ppo_time_split=ppo_split)
     print("\nwhere the harness's twin-Q SAC update spends its time (self CPU time):")
     for row in profile_rows:
         print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")

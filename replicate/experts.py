@@ -22,7 +22,7 @@ import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError, save_checkpoint
 from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.device import describe_device, resolve_device
+from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.common.networks import TanhGaussianPolicy
 from baselines.registry import get_algorithm
 from envs import env_spec, make_env
@@ -117,10 +117,14 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     algorithm = get_algorithm(algo)
     check_device(device)
     resolved_device = resolve_device(device, algorithm.gpu)
-    saved_on = "cuda" if str(previous.get("device", "cpu")).startswith("cuda") else "cpu"
-    if (work / "checkpoint.pt").is_file() and saved_on != resolved_device and device == "auto" \
-            and (saved_on == "cpu" or torch.cuda.is_available()):
-        resolved_device = saved_on  # resume where the checkpoint was made
+    saved_on = device_kind(previous.get("device", "cpu"))
+    try:
+        resolved_device = resume_device(
+            resolved_device, saved_on if (work / "checkpoint.pt").is_file() else None,
+            follow=device == "auto", what=f"the {env_id} expert ({work})")
+    except CheckpointDeviceError as exc:
+        raise HarnessError(str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
+                           ) from None
     # one expert alone on a machine may use every core for its matrix products
     config = algorithm.make_config({"torch_threads": threads})
     ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,

@@ -35,7 +35,8 @@ import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError
 from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.device import DeviceUnavailableError, describe_device, resolve_device
+from baselines.common.device import (DeviceUnavailableError, describe_device, device_kind,
+                                     resolve_device, resume_device)
 from baselines.registry import get_algorithm
 from replicate import provenance
 from replicate.demos import Demonstrations, default_demo_path, load_demos
@@ -211,8 +212,7 @@ def _checkpoint_device(run_dir: Path, earlier_sittings: list[dict]) -> str | Non
     from before the GPU path name no device: they ran on CPU."""
     if not (run_dir / CHECKPOINT_FILE).is_file():
         return None
-    last = earlier_sittings[-1].get("device", "cpu") if earlier_sittings else "cpu"
-    return "cuda" if last.startswith("cuda") else "cpu"
+    return device_kind(earlier_sittings[-1].get("device", "cpu") if earlier_sittings else "cpu")
 
 
 def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
@@ -222,15 +222,9 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     device = resolve_device(requested_device, get_algorithm(spec.algo).gpu)
     sittings_path = run_dir / SITTINGS_FILE
     earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
-    saved_on = _checkpoint_device(run_dir, earlier)
-    if saved_on is not None and saved_on != device:  # before anything in run_dir is touched
-        if follow_checkpoint and (saved_on == "cpu" or torch.cuda.is_available()):
-            device = saved_on  # the noise streams of CPU and CUDA differ in kind
-        else:
-            raise CheckpointDeviceError(
-                f"run {prepared.run_id} has a checkpoint made on {saved_on}, and this run "
-                f"would train on {device}; resume it with --device {saved_on} (or auto), or "
-                f"delete {run_dir} to start over")
+    # decided before anything in run_dir is touched
+    device = resume_device(device, _checkpoint_device(run_dir, earlier), follow_checkpoint,
+                           what=f"run {prepared.run_id} ({run_dir})")
     _write_json(run_dir / "spec.json", prepared.resolved)
     started = time.time()
     started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")

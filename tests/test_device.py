@@ -179,3 +179,17 @@ def test_a_cpu_checkpoint_is_resumed_on_cpu_by_a_gpu_worker_under_auto(tmp_path,
     with pytest.raises(Stop):
         execute(prepared, tmp_path, device="cuda", follow_checkpoint=True)
     assert seen["device"] == "cpu"
+
+
+def test_an_expert_checkpoint_from_a_gpu_is_refused_here_and_kept(tmp_path, monkeypatch):
+    from replicate import experts
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    work = experts.work_dir_for("Hopper-v5", tmp_path)
+    work.mkdir(parents=True)
+    (work / "progress.json").write_text(json.dumps(
+        {"total_steps": 200, "algo": "sac", "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}))
+    save_checkpoint(work / "checkpoint.pt", {"step": 100, "device": "cuda"})
+    with pytest.raises(HarnessError, match="made on cuda"):
+        experts.train_expert("Hopper-v5", steps=200, root=tmp_path, algo="sac")
+    assert (work / "checkpoint.pt").is_file()

@@ -13,6 +13,8 @@ from collections.abc import Callable
 
 import torch
 
+from baselines.common.checkpoint import CheckpointDeviceError
+
 DEVICES = ("auto", "cpu", "cuda")
 GRAPH_WARMUP_UPDATES = 3  # eager updates before capture: optimiser state and cuBLAS set up
 
@@ -56,6 +58,25 @@ def worker_devices(requested: str, workers: int, gpu_workers: int | None = None
         return [device] * workers
     on_gpu = min(gpu_workers, workers)
     return ["cuda"] * on_gpu + ["cpu"] * (workers - on_gpu)
+
+
+def device_kind(recorded: str) -> str:
+    """``cuda`` or ``cpu``, from a device as provenance records it (``describe_device``)."""
+    return "cuda" if recorded.startswith("cuda") else "cpu"
+
+
+def resume_device(device: str, saved_on: str | None, follow: bool, what: str) -> str:
+    """The device a run resumes on: ``device``, unless its checkpoint was made on the other
+    kind (``saved_on``; None: no checkpoint). Then the checkpoint's kind when ``follow`` and
+    this machine has it, since CPU and CUDA noise streams differ in kind; else
+    :class:`CheckpointDeviceError` naming ``what`` and the way out."""
+    if saved_on is None or saved_on == device:
+        return device
+    if follow and (saved_on == "cpu" or torch.cuda.is_available()):
+        return saved_on
+    raise CheckpointDeviceError(
+        f"{what} has a checkpoint made on {saved_on}, and would train on {device}; resume it "
+        f"with --device {saved_on} (or auto), or delete it to start over")
 
 
 def describe_device(device: str) -> str:
