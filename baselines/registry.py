@@ -55,6 +55,26 @@ def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool =
     return wrap
 
 
+_BATCHED: dict[str, Callable] = {}
+
+
+def register_batched(name: str) -> Callable[[Callable], Callable]:
+    """Decorator for a seed-batched trainer of algorithm ``name``: ``train(bctx, configs)``
+    trains the members of a ``baselines.batched.BatchContext`` together."""
+
+    def wrap(train: Callable) -> Callable:
+        _BATCHED[name] = train
+        return train
+
+    return wrap
+
+
+def batched_trainer(name: str) -> Callable | None:
+    """The seed-batched trainer of ``name``, or None where it has none (PPO, DDPGfD)."""
+    _discover()
+    return _BATCHED.get(name)
+
+
 def _discover() -> None:
     global _discovered
     if _discovered:

@@ -91,8 +91,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                            sigmas: list[float] | None = None, env_id: str = ABLATION_ENV,
                            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
                            executor: str = "local", address: str | None = None,
-                           device: str = "auto", gpu_workers: int | None = None
-                           ) -> Path:
+                           device: str = "auto", gpu_workers: int | None = None,
+                           batch: int | None = None) -> Path:
     """Run (or finish) the sweep and write its report; return the report's path."""
     import optuna
 
@@ -119,7 +119,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
 
     # SAC on the same seeds: what T2 = 0 must reproduce exactly.
     sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
-                           checkpoint_interval, executor, address, device, gpu_workers)
+                           checkpoint_interval, executor, address, device, gpu_workers,
+                           batch)
     failed = list(sac_outcome.failed)
 
     def objective(trial: Any) -> float:
@@ -127,7 +128,7 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
         sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
         outcome = run_grid(ablation_specs(chosen, env_id, threshold, sigma, n_seeds), store,
                            workers, checkpoint_interval, executor, address, device,
-                           gpu_workers)
+                           gpu_workers, batch)
         failed.extend(outcome.failed)
         if not outcome.runs:
             raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",

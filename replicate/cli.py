@@ -43,6 +43,11 @@ def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) ->
                                  "runs at once, so 2 is faster on a many-core machine, but "
                                  "which runs land on the GPU then depends on scheduling "
                                  "(default: every worker on the GPU)")
+        parser.add_argument("--batch", type=int, default=None, metavar="N",
+                            help="train up to N runs that differ only in seed together in "
+                                 "one process (SAC, twin-Q SAC, DRL-EG; the others train one "
+                                 "per process). Default: on a GPU as many as fit its memory "
+                                 "(up to 64), on CPU none")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -306,7 +311,7 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
                          workers=args.workers, checkpoint_interval=args.checkpoint_interval,
                          executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers)
+                         gpu_workers=args.gpu_workers, batch=args.batch)
     print(f"report: {report}")
     return 0
 
@@ -323,7 +328,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
     report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
                          store=args.store, out_dir=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers)
+                         gpu_workers=args.gpu_workers, batch=args.batch)
     print(f"report: {report}")
     return 0
 
@@ -336,7 +341,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     workers=args.workers, thresholds=args.thresholds,
                                     sigmas=args.sigmas, executor=args.executor,
                                     address=args.address, device=args.device,
-                                    gpu_workers=args.gpu_workers)
+                                    gpu_workers=args.gpu_workers, batch=args.batch)
     print(f"report: {report}")
     return 0
 

@@ -8,6 +8,7 @@ budgets and is meant for a cluster or a GPU machine.
 from __future__ import annotations
 
 import dataclasses
+import json
 import multiprocessing as mp
 import os
 import queue
@@ -23,7 +24,7 @@ from tqdm import tqdm
 from baselines.common.device import worker_devices
 from replicate.errors import HarnessError
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
-                              execute, is_complete, load_run, prepare)
+                              execute, execute_batch, is_complete, load_run, prepare)
 from replicate.spec import RunSpec
 
 
@@ -168,9 +169,10 @@ def _init_worker(progress: Any, devices: Any) -> None:
     _device = devices.get()
 
 
-def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int,
-            follow_checkpoint: bool) -> str:
-    """Train one run in a worker process, posting step counts to the progress queue."""
+def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interval: int,
+            follow_checkpoint: bool, env_workers: int = 0) -> list[tuple[str, str]]:
+    """Train one run, or one batch of runs, in a worker process, posting step counts to the
+    progress queue; return the (run id, reason) of batch members that failed alone."""
     progress = _progress
     pending = 0
     parent = os.getppid()
@@ -186,10 +188,55 @@ def _worker(prepared: PreparedRun, store: str, checkpoint_interval: int,
             progress.put(pending)
             pending = 0
 
-    execute(prepared, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
-            device=_device, follow_checkpoint=follow_checkpoint)
+    failed: list[tuple[str, str]] = []
+    if isinstance(task, list):
+        failed = execute_batch(task, Path(store), on_steps=on_steps,
+                               checkpoint_interval=checkpoint_interval, device=_device,
+                               follow_checkpoint=follow_checkpoint,
+                               env_workers=env_workers).failed
+    else:
+        execute(task, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
+                device=_device, follow_checkpoint=follow_checkpoint)
     progress.put(pending)
-    return prepared.run_id
+    return failed
+
+
+def batch_key(prepared: PreparedRun) -> str:
+    """Runs with equal keys may share a batch: everything of the resolved spec but the seed."""
+    resolved = {k: v for k, v in prepared.resolved.items()
+                if k not in ("seed", "spec_hash", "demos_path")}
+    return json.dumps(resolved, sort_keys=True, default=str)
+
+
+def plan_batches(missing: list[PreparedRun], batch: int | None
+                 ) -> list[PreparedRun | list[PreparedRun]]:
+    """The grid's tasks: runs of an algorithm with a batched trainer grouped, at most
+    ``batch`` per group, by everything but their seed; every other run alone. ``batch``
+    None or 1: every run alone."""
+    from baselines.registry import batched_trainer
+
+    if batch is None or batch <= 1:
+        return list(missing)
+    groups: dict[str, list[PreparedRun]] = {}
+    tasks: list[PreparedRun | list[PreparedRun]] = []
+    for p in missing:
+        if batched_trainer(p.spec.algo) is None:
+            tasks.append(p)
+        else:
+            groups.setdefault(batch_key(p), []).append(p)
+    batches = [group[i:i + batch] for group in groups.values()
+               for i in range(0, len(group), batch)]
+    # the longest work first, so that the one-run tasks fill the gaps
+    return sorted(batches, key=lambda b: -sum(p.spec.total_steps for p in b)) + tasks
+
+
+def _task_steps(task: PreparedRun | list[PreparedRun]) -> int:
+    members = task if isinstance(task, list) else [task]
+    return sum(p.spec.total_steps for p in members)
+
+
+def _task_ids(task: PreparedRun | list[PreparedRun]) -> list[str]:
+    return [p.run_id for p in task] if isinstance(task, list) else [task.run_id]
 
 
 DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
@@ -226,16 +273,66 @@ def estimate_minutes(missing: list[PreparedRun], store: Path, workers: int) -> f
 EXECUTORS = ("local", "ray")
 
 
+DEFAULT_GPU_BATCH = 64  # members per batch on a GPU when --batch is not given
+
+
+def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str) -> int | None:
+    """The batch size a grid trains with: ``batch`` if given (checked), else on a GPU the
+    largest up to ``DEFAULT_GPU_BATCH`` that fits its memory, else None (one run per
+    process). Bad sizes raise a one-line :class:`HarnessError`."""
+    from baselines.common.device import resolve_device
+    from baselines.registry import batched_trainer
+
+    if batch is not None and batch < 1:
+        raise HarnessError(f"batch size must be >= 1, got {batch}", "pass --batch 4, say")
+    batchable = [p for p in missing if batched_trainer(p.spec.algo) is not None]
+    if batch is not None and batch > 1 and missing and not batchable:
+        names = sorted({p.spec.algo for p in missing})
+        raise HarnessError(f"--batch {batch}: no batched trainer for {', '.join(names)}",
+                           "drop --batch (or batch sac, sac-twin-q and drl-eg runs)")
+    on_gpu = resolve_device(device, has_gpu_path=True) == "cuda"
+    if not on_gpu or not batchable:
+        return batch
+    import torch
+
+    free, _ = torch.cuda.mem_get_info()
+    need = max(batch_bytes(p, 1) for p in batchable)
+    fits = max(1, int(0.8 * free // need))
+    if batch is None:
+        return min(DEFAULT_GPU_BATCH, fits)
+    if batch > fits:
+        raise HarnessError(f"a batch of {batch} needs about {batch * need / 2**30:.1f} GiB of "
+                           f"GPU memory; {free / 2**30:.1f} GiB are free",
+                           f"pass --batch {fits} or less")
+    return batch
+
+
+def batch_bytes(prepared: PreparedRun, members: int) -> int:
+    """Device memory of ``members`` runs like ``prepared`` in one batch: their replay, plus
+    their networks, optimiser state and activations (a generous 64 MiB each)."""
+    from baselines.batched import batch_memory_bytes
+    from envs import env_spec
+
+    env = env_spec(prepared.spec.env_id)
+    capacity = min(prepared.config.buffer_size, prepared.spec.total_steps)
+    return batch_memory_bytes(env.obs_dim, env.act_dim, capacity, members) + members * 2**26
+
+
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
              address: str | None = None, device: str = "auto",
-             gpu_workers: int | None = None) -> GridOutcome:
+             gpu_workers: int | None = None, batch: int | None = None,
+             env_workers: int | None = None) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
     ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
     with a GPU path; the others always train on CPU. ``gpu_workers`` (with ``auto``) keeps
     only that many local workers on the GPU: see ``worker_devices``. On Ray, ``auto`` trains
-    on CPUs; ``cuda`` is refused there."""
+    on CPUs; ``cuda`` is refused there.
+
+    ``batch``: runs that differ only in seed train together, up to this many per process
+    (``baselines.batched``); on a GPU they do by default, as many as fit. ``env_workers``:
+    processes stepping each batch's envs (default: the cores left over by the workers)."""
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
@@ -249,23 +346,32 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         if device == "cuda":
             raise HarnessError("--device cuda is not supported with --executor ray",
                                "pass --device auto (the cluster's CPUs), or train locally")
+        if batch is not None:
+            raise HarnessError("--batch is not supported with --executor ray",
+                               "drop --batch, or train locally")
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
-    workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(missing))))
+    tasks = plan_batches(missing, resolve_batch(batch, missing, device))
+    workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
+    if env_workers is None:
+        env_workers = max(0, (os.cpu_count() or 1) // workers - 1)
     try:
         devices = worker_devices(device, workers, gpu_workers)
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
     on_gpu = devices.count("cuda")
     total_steps = sum(p.spec.total_steps for p in missing)
+    batches = [t for t in tasks if isinstance(t, list)]
+    batched_note = (f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)"
+                    if batches else "")
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-          f"training {len(missing)} runs, {total_steps:,} env steps on {workers} worker(s)"
-          f"{f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
+          f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps on "
+          f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
           f"estimated {estimate_minutes(missing, store, workers):.0f} min on this machine "
           "(from the speeds of the store's runs)", flush=True)
 
     started = time.time()
     failed: list[tuple[str, str]] = []
-    if missing:
+    if tasks:
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
         # a plain queue handed over at worker start: no manager process to outlive a kill
         progress = ctx.Queue()
@@ -277,28 +383,33 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                      initializer=_init_worker,
                                      initargs=(progress, device_slots)) as pool:
-                futures: dict[Future, PreparedRun] = {
-                    pool.submit(_worker, p, str(store), checkpoint_interval,
-                                device == "auto"): p
-                    for p in missing}
+                futures: dict[Future, PreparedRun | list[PreparedRun]] = {
+                    pool.submit(_worker, task, str(store), checkpoint_interval,
+                                device == "auto", env_workers): task
+                    for task in tasks}
                 pending = set(futures)
                 done_count = 0
                 while pending:
                     finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                     for future in finished:
-                        done_count += 1
+                        task = futures[future]
+                        done_count += len(_task_ids(task))
                         error = future.exception()
                         if error is not None:
                             reason = f"{type(error).__name__}: {error}".replace("\n", " ")
-                            failed.append((futures[future].run_id, reason))
-                            tqdm.write(f"run failed: {futures[future].run_id}: {reason}")
+                            lost = [(run_id, reason) for run_id in _task_ids(task)]
+                        else:
+                            lost = future.result()
+                        for run_id, reason in lost:
+                            failed.append((run_id, reason))
+                            tqdm.write(f"run failed: {run_id}: {reason}")
                     try:
                         while True:
                             bar.update(progress.get_nowait())
                     except queue.Empty:
                         pass
                     bar.set_postfix_str(f"runs done {done_count}/{len(missing)}, "
-                                        f"running {min(workers, len(pending))}, "
+                                        f"running {min(workers, len(pending))} task(s), "
                                         f"failed {len(failed)}", refresh=False)
             try:  # what the last workers posted as they finished
                 while True:
@@ -313,7 +424,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
                 out_dir: Path = Path("reports/fig3"), workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
                 address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None) -> Path:
+                gpu_workers: int | None = None, batch: int | None = None) -> Path:
     """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
     from replicate.report import write_figure3_report
 
@@ -322,7 +433,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
     outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device,
-                       gpu_workers)
+                       gpu_workers, batch)
     outcome.skipped = skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
@@ -460,12 +571,12 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                 workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
                 address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None) -> Path:
+                gpu_workers: int | None = None, batch: int | None = None) -> Path:
     """Train what Fig. 4 lacks and write its report; return the report's path."""
     from replicate.report import write_figure4_report
 
     chosen = get_profile(profile)
     outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
-                       executor, address, device, gpu_workers)
+                       executor, address, device, gpu_workers, batch)
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_figure4_report(outcome, chosen, env_id, out_dir)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import fcntl
+import hashlib
 import json
 import os
 import shutil
@@ -215,80 +216,232 @@ def _checkpoint_device(run_dir: Path, earlier_sittings: list[dict]) -> str | Non
     return device_kind(earlier_sittings[-1].get("device", "cpu") if earlier_sittings else "cpu")
 
 
+class _RunRecorder:
+    """Writes one run's files while it trains: spec.json, curve.csv (rewritten whole: a
+    resumed algorithm re-emits the points it had, which keep the wall time they were first
+    written with), sittings.json after every point, and provenance.json at the end."""
+
+    def __init__(self, prepared: PreparedRun, run_dir: Path, device: str,
+                 batch: dict[str, Any] | None = None):
+        self.prepared, self.run_dir, self.device, self.batch = prepared, run_dir, device, batch
+        self.sittings_path = run_dir / SITTINGS_FILE
+        self.earlier = (json.loads(self.sittings_path.read_text())
+                        if self.sittings_path.is_file() else [])
+        self.started = time.time()
+        self.started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.resumed_from = 0
+        self.earlier_walls: dict[int, str] = {}
+        self.earlier_wall = sum(s["wall_time_s"] for s in self.earlier)
+        self.curve_file: Any = None
+
+    def open(self) -> None:
+        _write_json(self.run_dir / "spec.json", self.prepared.resolved)
+        curve_path = self.run_dir / "curve.csv"
+        if curve_path.is_file():
+            with open(curve_path, newline="") as handle:
+                self.earlier_walls = {int(row["step"]): row["wall_s"]
+                                      for row in csv.DictReader(handle)}
+        self.curve_file = open(curve_path, "w", newline="")
+        self.writer = csv.writer(self.curve_file)
+        self.writer.writerow(CURVE_COLUMNS)
+
+    def on_resume(self, step: int) -> None:
+        self.resumed_from = step
+
+    def record_sitting(self) -> None:
+        sitting = {"started_utc": self.started_iso, "resumed_from_step": self.resumed_from,
+                   "wall_time_s": round(time.time() - self.started, 3),
+                   "git_revision": provenance.code_revision(),
+                   "device": describe_device(self.device)}
+        if self.batch is not None:
+            sitting["batch"] = self.batch["id"]
+        self.sittings_path.write_text(json.dumps(self.earlier + [sitting], indent=1) + "\n")
+
+    def on_eval(self, point: EvalPoint) -> None:
+        kept = point.step <= self.resumed_from and point.step in self.earlier_walls
+        self.writer.writerow([
+            point.step, f"{point.mean_return:.6g}", f"{np.std(point.returns):.6g}",
+            ";".join(f"{r:.6g}" for r in point.returns), f"{point.guided_fraction:.6g}",
+            "" if point.gate_open is None else int(point.gate_open),
+            self.earlier_walls[point.step] if kept
+            else f"{self.earlier_wall + time.time() - self.started:.3f}"])
+        self.curve_file.flush()
+        self.record_sitting()
+
+    def close(self) -> None:
+        if self.curve_file is not None:
+            self.curve_file.close()
+
+    def finish(self) -> None:
+        """The last sitting and provenance.json: the run is complete."""
+        self.record_sitting()
+        prepared, spec = self.prepared, self.prepared.spec
+        sittings = json.loads(self.sittings_path.read_text())
+        wall = sum(s["wall_time_s"] for s in sittings)
+        payload = {
+            "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
+            "seed": spec.seed, "started_utc": sittings[0]["started_utc"],
+            "wall_time_s": round(wall, 3), "sittings": sittings,
+            "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
+            "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
+            "machine": provenance.machine(), "device": describe_device(self.device),
+            "demos": None if prepared.demos is None else {
+                "sha256": prepared.demos.sha256, "path": prepared.resolved["demos_path"],
+                "expert_return_mean": prepared.demos.mean_return,
+                "expert": prepared.demos.metadata.get("expert")}}
+        if self.batch is not None:
+            # the batch's wall time is shared by its members: the rate is per member
+            payload["batch"] = {**self.batch, "device": describe_device(self.device)}
+        _write_json(self.run_dir / "provenance.json", payload)
+
+
+def _context(prepared: PreparedRun, recorder: _RunRecorder, device: str,
+             **fields: Any) -> TrainContext:
+    spec = prepared.spec
+    return TrainContext(env_id=spec.env_id, seed=spec.seed, total_steps=spec.total_steps,
+                        eval_interval=spec.eval_interval, eval_episodes=spec.eval_episodes,
+                        demos=prepared.demos, on_eval=recorder.on_eval,
+                        on_resume=recorder.on_resume, device=device, **fields)
+
+
 def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
                 checkpoint_interval: int, requested_device: str,
                 follow_checkpoint: bool) -> None:
-    spec = prepared.spec
-    device = resolve_device(requested_device, get_algorithm(spec.algo).gpu)
+    device = resolve_device(requested_device, get_algorithm(prepared.spec.algo).gpu)
     sittings_path = run_dir / SITTINGS_FILE
     earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
     # decided before anything in run_dir is touched
     device = resume_device(device, _checkpoint_device(run_dir, earlier), follow_checkpoint,
                            what=f"run {prepared.run_id} ({run_dir})")
-    _write_json(run_dir / "spec.json", prepared.resolved)
-    started = time.time()
-    started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    resumed_from = 0
-
-    def on_resume(step: int) -> None:
-        nonlocal resumed_from
-        resumed_from = step
-
-    def record_sitting() -> None:
-        sittings = earlier + [{"started_utc": started_iso, "resumed_from_step": resumed_from,
-                               "wall_time_s": round(time.time() - started, 3),
-                               "git_revision": provenance.code_revision(),
-                               "device": describe_device(device)}]
-        sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
-
-    # The curve is rewritten whole: a resumed algorithm re-emits the points it had, which
-    # keep the wall time they were first written with.
-    earlier_walls: dict[int, str] = {}
-    if (run_dir / "curve.csv").is_file():
-        with open(run_dir / "curve.csv", newline="") as handle:
-            earlier_walls = {int(row["step"]): row["wall_s"] for row in csv.DictReader(handle)}
-    curve_file = open(run_dir / "curve.csv", "w", newline="")
-    writer = csv.writer(curve_file)
-    writer.writerow(CURVE_COLUMNS)
-
-    earlier_wall = sum(s["wall_time_s"] for s in earlier)
-
-    def on_eval(point: EvalPoint) -> None:
-        writer.writerow([point.step, f"{point.mean_return:.6g}", f"{np.std(point.returns):.6g}",
-                         ";".join(f"{r:.6g}" for r in point.returns),
-                         f"{point.guided_fraction:.6g}",
-                         "" if point.gate_open is None else int(point.gate_open),
-                         earlier_walls[point.step] if point.step <= resumed_from
-                         and point.step in earlier_walls
-                         else f"{earlier_wall + time.time() - started:.3f}"])
-        curve_file.flush()
-        record_sitting()
-
-    ctx = TrainContext(env_id=spec.env_id, seed=spec.seed, total_steps=spec.total_steps,
-                       eval_interval=spec.eval_interval, eval_episodes=spec.eval_episodes,
-                       demos=prepared.demos, on_eval=on_eval, on_steps=on_steps,
-                       on_resume=on_resume, device=device,
-                       checkpoint_path=run_dir / CHECKPOINT_FILE,
-                       checkpoint_interval=checkpoint_interval)
+    recorder = _RunRecorder(prepared, run_dir, device)
+    recorder.open()
+    ctx = _context(prepared, recorder, device, on_steps=on_steps,
+                   checkpoint_path=run_dir / CHECKPOINT_FILE,
+                   checkpoint_interval=checkpoint_interval)
     try:
-        get_algorithm(spec.algo).train(ctx, prepared.config)
+        get_algorithm(prepared.spec.algo).train(ctx, prepared.config)
     finally:
-        curve_file.close()
-    record_sitting()
-    sittings = json.loads(sittings_path.read_text())
-    wall = sum(s["wall_time_s"] for s in sittings)
-    _write_json(run_dir / "provenance.json", {
-        "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
-        "seed": spec.seed, "started_utc": sittings[0]["started_utc"],
-        "wall_time_s": round(wall, 3), "sittings": sittings,
-        "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
-        "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
-        "machine": provenance.machine(), "device": describe_device(device),
-        "demos": None if prepared.demos is None else {
-            "sha256": prepared.demos.sha256, "path": prepared.resolved["demos_path"],
-            "expert_return_mean": prepared.demos.mean_return,
-            "expert": prepared.demos.metadata.get("expert")},
-    })
+        recorder.close()
+    recorder.finish()
+
+
+def batch_id(members: list[PreparedRun]) -> str:
+    """The address of a batch: its members' run ids, in order."""
+    joined = "\n".join(p.run_id for p in members)
+    return "batch-" + hashlib.sha256(joined.encode()).hexdigest()[:16]
+
+
+@dataclass
+class BatchOutcome:
+    runs: list[Run]
+    failed: list[tuple[str, str]]  # (run id, reason) of members that failed alone
+
+
+def execute_batch(members: list[PreparedRun], store: Path,
+                  on_steps: Callable[[int], None] = lambda n: None,
+                  checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
+                  follow_checkpoint: bool | None = None, env_workers: int = 0) -> BatchOutcome:
+    """Train ``members`` (one algorithm with a batched trainer, one env and budget,
+    different seeds) together in this process. Each member lands in the store as its own
+    run directory, at the address the one-run path gives it; its provenance names the batch.
+    A member that diverges fails alone. The batch checkpoints as a whole into
+    ``<store>/.<batch id>/`` and resumes from there when started again with the same
+    members."""
+    from baselines.registry import batched_trainer
+
+    if follow_checkpoint is None:
+        follow_checkpoint = device == "auto"
+    check_device(device)
+    store = Path(store)
+    members = [p for p in members if not is_complete(p.directory(store))]
+    if not members:
+        return BatchOutcome([], [])
+    algos = {p.spec.algo for p in members}
+    trainer = batched_trainer(members[0].spec.algo)
+    if len(algos) != 1 or trainer is None:
+        raise HarnessError(f"a batch needs one algorithm with a batched trainer, got "
+                           f"{sorted(algos)}", "batch only sac, sac-twin-q and drl-eg runs")
+    store.mkdir(parents=True, exist_ok=True)
+    ident = batch_id(members)
+    batch_dir = store / f".{ident}"
+    locks = []
+    try:
+        for p in members:
+            lock_path = store / f".lock-{p.run_id}"
+            handle = open(lock_path, "w")
+            locks.append((lock_path, handle))
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise RunLockedError(f"run {p.run_id} is being trained by another process",
+                                     "wait for it, or stop that process") from None
+        batch_dir.mkdir(exist_ok=True)
+        batch_sittings = batch_dir / SITTINGS_FILE
+        earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
+        resolved = resolve_device(device, has_gpu_path=True)
+        resolved = resume_device(resolved, _checkpoint_device(batch_dir, earlier),
+                                 follow_checkpoint, what=f"batch {ident} ({batch_dir})")
+        info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
+        work_dirs = [partial_directory(p, store) for p in members]
+        recorders = []
+        for p, work in zip(members, work_dirs):
+            work.mkdir(exist_ok=True)
+            recorders.append(_RunRecorder(p, work, resolved, info))
+        failures: dict[int, str] = {}
+        contexts = [_context(p, r, resolved) for p, r in zip(members, recorders)]
+
+        def on_resume(step: int) -> None:
+            for recorder in recorders:
+                recorder.on_resume(step)
+
+        from baselines.batched import BatchContext
+
+        bctx = BatchContext(contexts, device=resolved, env_workers=env_workers,
+                            on_steps=on_steps, on_resume=on_resume,
+                            on_member_failed=lambda k, why: failures.__setitem__(k, why),
+                            checkpoint_path=batch_dir / CHECKPOINT_FILE,
+                            checkpoint_interval=checkpoint_interval)
+        started = time.time()
+        for recorder in recorders:
+            recorder.open()
+        try:
+            trainer(bctx, [p.config for p in members])
+        except CheckpointDeviceError as exc:
+            raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
+                               f"delete {batch_dir}") from None
+        except torch.OutOfMemoryError:
+            raise HarnessError(f"batch {ident} of {len(members)} runs ran out of GPU memory; "
+                               "its last checkpoint is kept",
+                               "run the same command again with a smaller --batch") from None
+        except RECURRING_ERRORS:
+            shutil.rmtree(batch_dir, ignore_errors=True)
+            for work in work_dirs:
+                shutil.rmtree(work, ignore_errors=True)
+            raise
+        finally:
+            for recorder in recorders:
+                recorder.close()
+        batch_sittings.write_text(json.dumps(earlier + [{
+            "wall_time_s": round(time.time() - started, 3),
+            "device": describe_device(resolved)}], indent=1) + "\n")
+        runs, failed = [], []
+        for k, (p, recorder, work) in enumerate(zip(members, recorders, work_dirs)):
+            if k in failures:
+                failed.append((p.run_id, f"FloatingPointError: {failures[k]}"))
+                shutil.rmtree(work, ignore_errors=True)
+                continue
+            recorder.finish()
+            final_dir = p.directory(store)
+            if final_dir.exists():
+                shutil.rmtree(final_dir)
+            os.replace(work, final_dir)
+            runs.append(load_run(final_dir))
+        shutil.rmtree(batch_dir, ignore_errors=True)
+        return BatchOutcome(runs, failed)
+    finally:
+        for lock_path, handle in locks:
+            lock_path.unlink(missing_ok=True)
+            handle.close()
 
 
 def completed_runs(store: Path) -> list[Run]:

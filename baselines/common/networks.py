@@ -77,17 +77,25 @@ class TanhGaussianPolicy(nn.Module):
         """A reparameterised action and its log-density; ``noise`` (standard normal, one row
         per observation) is drawn from ``generator`` unless given."""
         mean, log_std = self(obs)
-        std = log_std.exp()
         if noise is None:
             noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype,
                                 device=mean.device)
-        pre_tanh = mean + std * noise
-        gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
-        # log(1 - tanh(u)^2) in a form that stays finite for large |u|
-        log_tanh_jacobian = 2.0 * (math.log(2.0) - pre_tanh - F.softplus(-2.0 * pre_tanh))
-        log_prob = gaussian_log_prob - (log_tanh_jacobian + torch.log(self.action_scale)).sum(-1)
-        action = self.action_bias + self.action_scale * torch.tanh(pre_tanh)
-        return action, log_prob
+        return squashed_sample(mean, log_std, noise, self.action_scale, self.action_bias)
+
+
+def squashed_sample(mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor,
+                    action_scale: torch.Tensor, action_bias: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """bias + scale * tanh(mean + std * noise) and its log-density (the last axis is the
+    action's); shared by the one-run policy and the seed-batched one."""
+    std = log_std.exp()
+    pre_tanh = mean + std * noise
+    gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+    # log(1 - tanh(u)^2) in a form that stays finite for large |u|
+    log_tanh_jacobian = 2.0 * (math.log(2.0) - pre_tanh - F.softplus(-2.0 * pre_tanh))
+    log_prob = gaussian_log_prob - (log_tanh_jacobian + torch.log(action_scale)).sum(-1)
+    action = action_bias + action_scale * torch.tanh(pre_tanh)
+    return action, log_prob
 
 
 def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:

@@ -1,0 +1,645 @@
+"""Seed-batched training: N runs of SAC, twin-Q SAC or DRL-EG in one process.
+
+The members of a batch share algorithm, env, budget and network shapes and differ in seed
+(DRL-EG members may also differ in T2 and sigma, which change no shape). Each member is a
+run of its own: it starts from the weights the one-run path gives its seed (the one-run
+agent is built, then its weights are stacked), and on CPU it draws its exploration noise,
+replay indices and guider noise from the very streams the one-run path uses. Every network
+is a stack of N (``baselines.common.stacked``): one batched product per layer serves all
+members, and no statistic is shared across them. Member k's numbers therefore do not depend
+on which other members share its batch.
+
+On a GPU the gradient step of all N members (replay sampling included) is one CUDA graph
+replay, and so is the policy's action for all N; there the members draw their noise and
+replay indices from one device generator for the batch (GPU curves are not bit-reproducible
+in any case).
+
+The loop is ``baselines.sac.run_off_policy`` for N envs stepped together
+(``envs.vector.EnvBatch``). A member whose losses turn NaN or inf fails alone: its env stops,
+its failure is reported, and the others go on. Checkpoints hold the whole batch and may be
+taken in the middle of episodes: the envs are restored by replaying their episode's actions.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from baselines.common.buffer import Batch
+from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkpoint,
+                                         save_checkpoint)
+from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.device import GraphedStep, make_adam
+from baselines.common.evaluation import EVAL_SEED_OFFSET
+from baselines.common.stacked import (StackedMLP, StackedPolicy, StackedReplay, critic_pairs,
+                                      pair_critics)
+from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
+                              fit_neural_guider, functional_discriminator, functional_guider,
+                              gmm_discriminator)
+from baselines.registry import register_batched
+from baselines.sac import SACAgent, SACConfig, frozen, q_target, v_target
+from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
+from envs import make_env
+from envs.vector import EnvBatch
+
+
+@dataclass
+class BatchContext:
+    """What the runner hands a batched trainer: one ``TrainContext`` per member (task,
+    seed, budget, demonstrations, curve sink) and what the batch shares."""
+
+    members: list[TrainContext]
+    device: str = "cpu"
+    cuda_graphs: bool = True
+    env_workers: int = 0  # processes stepping the envs; 0: in this process
+    on_steps: Callable[[int], None] = field(default=lambda n: None)  # env steps, all members
+    on_resume: Callable[[int], None] = field(default=lambda step: None)
+    on_member_failed: Callable[[int, str], None] = field(default=lambda k, reason: None)
+    checkpoint_path: Path | None = None
+    checkpoint_interval: int = 0
+
+    @property
+    def seeds(self) -> list[int]:
+        return [m.seed for m in self.members]
+
+    def shared(self, name: str) -> Any:
+        """A setting every member must have alike."""
+        values = {getattr(m, name) for m in self.members}
+        if len(values) != 1:
+            raise ValueError(f"the members of a batch differ in {name}: {sorted(values)}")
+        return values.pop()
+
+
+def _space(env_id: str) -> tuple[int, int, np.ndarray, np.ndarray]:
+    probe = make_env(env_id)
+    obs_dim, space = probe.observation_space.shape[0], probe.action_space
+    probe.close()
+    return obs_dim, space.shape[0], space.low, space.high
+
+
+class StackedActor:
+    """Acting and noise for N members. On CPU member k's noise comes from its one-run
+    generator (seed + 1), drawn in the one-run order; on a GPU from the batch's generator."""
+
+    policy: StackedPolicy
+    device: torch.device
+    members: int
+    act_dim: int
+    generators: list[torch.Generator]
+
+    def _member_noise(self, rows: int, need: np.ndarray | None = None) -> torch.Tensor:
+        noise = torch.zeros((self.members, rows, self.act_dim))
+        for k, generator in enumerate(self.generators):
+            if need is None or need[k]:
+                noise[k] = torch.randn((rows, self.act_dim), generator=generator)
+        return noise
+
+    def _setup_acting(self, cuda_graphs: bool) -> None:
+        self._act_graph = GraphedStep(self._act_body, self.device, cuda_graphs)
+
+    def _act_body(self, obs: torch.Tensor, noise: torch.Tensor | None = None
+                  ) -> dict[str, torch.Tensor]:
+        if noise is None:  # on the GPU, inside the graph
+            noise = torch.randn((self.members, 1, self.act_dim), device=self.device)
+        action, _ = self.policy.sample(obs[:, None, :], noise)
+        return {"action": action[:, 0].detach()}
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+        """A sampled action per member; on CPU only members in ``need`` draw noise (a guided
+        member's policy does not act, and its one-run stream is not advanced)."""
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+        if self.device.type == "cpu":
+            out = self._act_body(obs_t, self._member_noise(1, need))
+        else:
+            out = self._act_graph(obs=obs_t)
+        return out["action"].cpu().numpy()
+
+    @torch.no_grad()
+    def act_deterministic(self, obs: np.ndarray) -> np.ndarray:
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(self.device)
+        return self.policy.deterministic(obs_t[:, None, :])[:, 0].cpu().numpy()
+
+    def _setup_updates(self, members: int, batch_size: int, cuda_graphs: bool) -> None:
+        self.batch_size = batch_size
+        self.buffer: StackedReplay | None = None
+        self._update_graph = GraphedStep(self._sample_and_update, self.device, cuda_graphs)
+        self._size = torch.zeros((), dtype=torch.long, device=self.device)
+
+    def _sample_and_update(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The GPU's whole step: replay indices, the batch, the noise and the update."""
+        uniform = torch.rand((self.members, self.batch_size), device=self.device)
+        indices = torch.minimum((uniform * size).long(), size - 1)
+        batch = self.buffer.gather(indices)
+        return self._gradient_step(batch, self._device_noise(batch))
+
+    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
+        """One gradient step of every member on its own minibatch; per-member losses (N,)."""
+        if self.device.type == "cpu":
+            batch = self.buffer.sample(self.batch_size, rngs)
+            return self._gradient_step(batch, self._cpu_noise())
+        self._size.fill_(self.buffer.size)
+        return self._update_graph(size=self._size)
+
+    def noise_state(self) -> dict[str, Any]:
+        if self.device.type == "cpu":
+            return {"generators": [g.get_state() for g in self.generators]}
+        return {"cuda": torch.cuda.get_rng_state(self.device)}
+
+    def load_noise_state(self, state: dict[str, Any]) -> None:
+        if "generators" in state:
+            for generator, value in zip(self.generators, state["generators"], strict=True):
+                generator.set_state(value)
+        else:
+            torch.cuda.set_rng_state(state["cuda"], self.device)
+
+    def _cpu_noise(self) -> Any:
+        raise NotImplementedError
+
+    def _device_noise(self, batch: Batch) -> Any:
+        raise NotImplementedError
+
+    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+
+class StackedSACAgent(StackedActor):
+    """The paper's V-network SAC (``baselines.sac.SACAgent``) for N members."""
+
+    def __init__(self, agents: list[SACAgent], config: SACConfig, device: str,
+                 cuda_graphs: bool = True):
+        self.config, self.device = config, torch.device(device)
+        self.members, self.act_dim = len(agents), agents[0].policy.action_scale.shape[0]
+        self.critics = pair_critics([a.q1.net for a in agents],
+                                    [a.q2.net for a in agents]).to(self.device)
+        self.v = StackedMLP.stack([a.v.net for a in agents]).to(self.device)
+        self.v_target = StackedMLP.stack([a.v_target.net for a in agents]).to(self.device)
+        first = agents[0].policy
+        self.policy = StackedPolicy(StackedMLP.stack([a.policy.trunk for a in agents]),
+                                    first.action_scale, first.action_bias).to(self.device)
+        lr = config.learning_rate
+        self.q_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
+        self.v_optimizer = make_adam(self.v.parameters(), lr, self.device, True)
+        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
+        self.generators = [a.noise for a in agents]
+        self._setup_acting(cuda_graphs)
+        self._setup_updates(self.members, config.batch_size, cuda_graphs)
+
+    MODULES = ("critics", "v", "v_target", "policy", "q_optimizer", "v_optimizer",
+               "policy_optimizer")
+
+    def _cpu_noise(self) -> torch.Tensor:
+        return self._member_noise(self.batch_size).to(self.device)
+
+    def _device_noise(self, batch: Batch) -> torch.Tensor:
+        return torch.randn(batch.actions.shape, device=self.device)
+
+    def _gradient_step(self, batch: Batch, noise: torch.Tensor) -> dict[str, torch.Tensor]:
+        cfg = self.config
+        obs, actions = batch.observations, batch.actions
+        with torch.no_grad():
+            y_q = q_target(batch.rewards, batch.terminated,
+                           self.v_target(batch.next_observations).squeeze(-1), cfg.gamma,
+                           cfg.reward_scale)
+        q = critic_pairs(self.critics, obs, actions)  # (N, 2, B)
+        q_losses = 0.5 * (q - y_q[:, None]).pow(2).mean(-1).sum(-1)  # per member
+        self.q_optimizer.zero_grad()
+        q_losses.sum().backward()
+        self.q_optimizer.step()
+
+        new_actions, log_prob = self.policy.sample(obs, noise)
+        with frozen(self.critics):
+            q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
+        v_losses = 0.5 * (self.v(obs).squeeze(-1) - v_target(q_new, log_prob).detach()
+                          ).pow(2).mean(-1)
+        policy_losses = (log_prob - q_new).mean(-1)
+        self.v_optimizer.zero_grad()
+        v_losses.sum().backward()
+        self.v_optimizer.step()
+        self.policy_optimizer.zero_grad()
+        policy_losses.sum().backward()
+        self.policy_optimizer.step()
+
+        with torch.no_grad():
+            torch._foreach_lerp_(list(self.v_target.parameters()), list(self.v.parameters()),
+                                 cfg.tau)
+        return {"q_loss": q_losses.detach(), "v_loss": v_losses.detach(),
+                "policy_loss": policy_losses.detach(), "entropy": -log_prob.detach().mean(-1)}
+
+
+class StackedTwinQAgent(StackedActor):
+    """Twin-Q, learned-temperature SAC (``baselines.sac_twin_q``) for N members."""
+
+    def __init__(self, agents: list[TwinQSACAgent], config: TwinQSACConfig, device: str,
+                 cuda_graphs: bool = True):
+        self.config, self.device = config, torch.device(device)
+        self.members, self.act_dim = len(agents), agents[0].policy.action_scale.shape[0]
+        self.critics = self._stack_ensembles([a.critics for a in agents]).to(self.device)
+        self.critics_target = self._stack_ensembles([a.critics_target for a in agents]
+                                                    ).to(self.device)
+        first = agents[0].policy
+        self.policy = StackedPolicy(StackedMLP.stack([a.policy.trunk for a in agents]),
+                                    first.action_scale, first.action_bias).to(self.device)
+        self.log_alpha = torch.cat([a.log_alpha.detach() for a in agents]).to(self.device)
+        self.log_alpha.requires_grad_(True)
+        self.target_entropy = agents[0].target_entropy
+        lr = config.learning_rate
+        self.critic_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
+        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
+        self.alpha_optimizer = make_adam([self.log_alpha], lr, self.device, True)
+        self.generators = [a.noise for a in agents]
+        self._setup_acting(cuda_graphs)
+        self._setup_updates(self.members, config.batch_size, cuda_graphs)
+
+    MODULES = ("critics", "critics_target", "policy", "critic_optimizer", "policy_optimizer",
+               "alpha_optimizer")
+
+    @staticmethod
+    def _stack_ensembles(ensembles: list) -> StackedMLP:
+        """Each member's (2, in, out) critic pair, member-major, as one stack of 2N."""
+        return StackedMLP([torch.cat([e.weights[i].detach() for e in ensembles])
+                           for i in range(len(ensembles[0].weights))],
+                          [torch.cat([e.biases[i].detach() for e in ensembles])
+                           for i in range(len(ensembles[0].biases))])
+
+    def _cpu_noise(self) -> tuple[torch.Tensor, torch.Tensor]:
+        # member k draws next_noise, then new_noise, from its own stream, as one run does
+        next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
+        new_noise = torch.zeros_like(next_noise)
+        for k, generator in enumerate(self.generators):
+            next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+            new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+        return next_noise.to(self.device), new_noise.to(self.device)
+
+    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+        return (torch.randn(batch.actions.shape, device=self.device),
+                torch.randn(batch.actions.shape, device=self.device))
+
+    def _gradient_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor]
+                       ) -> dict[str, torch.Tensor]:
+        cfg = self.config
+        next_noise, new_noise = noise
+        obs, actions = batch.observations, batch.actions
+        alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
+
+        with torch.no_grad():
+            next_actions, next_log_prob = self.policy.sample(batch.next_observations, next_noise)
+            next_q = critic_pairs(self.critics_target, batch.next_observations,
+                                  next_actions).min(dim=1).values
+            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * (
+                next_q - alpha * next_log_prob)
+        q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]
+                          ).pow(2).mean(-1).sum(-1)
+        self.critic_optimizer.zero_grad()
+        q_losses.sum().backward()
+        self.critic_optimizer.step()
+
+        new_actions, log_prob = self.policy.sample(obs, new_noise)
+        with frozen(self.critics):
+            q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
+        policy_losses = (alpha * log_prob - q_new).mean(-1)
+        self.policy_optimizer.zero_grad()
+        policy_losses.sum().backward()
+        self.policy_optimizer.step()
+
+        alpha_losses = -(self.log_alpha[:, None] * (log_prob.detach() + self.target_entropy)
+                         ).mean(-1)
+        self.alpha_optimizer.zero_grad()
+        alpha_losses.sum().backward()
+        self.alpha_optimizer.step()
+
+        with torch.no_grad():
+            torch._foreach_lerp_(list(self.critics_target.parameters()),
+                                 list(self.critics.parameters()), cfg.tau)
+        return {"q_loss": q_losses.detach(), "policy_loss": policy_losses.detach(),
+                "alpha": alpha[:, 0], "entropy": -log_prob.detach().mean(-1)}
+
+
+def agent_state(agent: StackedActor) -> dict[str, Any]:
+    state = {name: copy.deepcopy(getattr(agent, name).state_dict()) for name in agent.MODULES}
+    if isinstance(agent, StackedTwinQAgent):
+        state["log_alpha"] = agent.log_alpha.detach().cpu().clone()
+    state["noise"] = agent.noise_state()
+    return state
+
+
+def load_agent_state(agent: StackedActor, state: dict[str, Any]) -> None:
+    for name in agent.MODULES:
+        getattr(agent, name).load_state_dict(state[name])
+    if "log_alpha" in state:
+        with torch.no_grad():
+            agent.log_alpha.copy_(state["log_alpha"])
+    agent.load_noise_state(state["noise"])
+
+
+class StackedExplorer:
+    """SAC's choice for N members: each samples its policy."""
+
+    def __init__(self, agent: StackedActor):
+        self.agent = agent
+
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.agent.act(obs), np.zeros(len(obs), dtype=bool)
+
+    def after_eval(self, k: int, mean_return: float) -> bool | None:
+        return None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        pass
+
+
+class StackedGuidedExplorer(StackedExplorer):
+    """Algorithm 1's choice for N members: member k takes its guider's action while its
+    R_demo > R_pi and D(s_k) = 1. One KD-tree of the shared demonstrations answers all N
+    states in one query; each member keeps its own T2, sigma, guider stream and gate."""
+
+    def __init__(self, agent: StackedActor, configs: list, demos: Any, low: np.ndarray,
+                 high: np.ndarray, seeds: list[int]):
+        super().__init__(agent)
+        self.configs, self.low, self.high = configs, low, high
+        # one Guidance fits the tree (and the GMM or MLP of member 0); the others share the
+        # tree and fit their own models from their own seeds, as their one-run guiders do
+        first = Guidance(configs[0], demos, low, high, seeds[0])
+        self.tree, self.demo_actions = first.tree, first.actions
+        self.rngs = [np.random.default_rng([seed, 2]) for seed in seeds]
+        self.gmms: list[Any] = []
+        self.nets: list[Any] = []
+        for k, (config, seed) in enumerate(zip(configs, seeds)):
+            if config.discriminator == "gmm":
+                self.gmms.append((first.gmm, first.log_threshold) if k == 0 else
+                                 fit_gmm(first.states, config.gmm_components,
+                                         config.gmm_threshold_quantile, seed))
+            if config.guider == "neural":
+                self.nets.append(first.net if k == 0 else fit_neural_guider(
+                    demos, config.neural_guider_hidden, config.neural_guider_steps, seed))
+        self.thresholds = np.array([c.guide_threshold for c in configs])
+        self.demo_return = demos.mean_return
+        self.policy_returns = np.zeros(len(configs))  # Algorithm 1: R_pi <- 0 before testing
+
+    def decide(self, obs: np.ndarray, gate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """D(s) for the members in ``gate``, and each nearest demonstration's index (-1
+        where not searched): the same as each member's one-run ``Guidance`` decides."""
+        n = len(obs)
+        guided = np.zeros(n, dtype=bool)
+        index = np.full(n, -1)
+        functional = np.array([c.discriminator == "functional" for c in self.configs]) & gate
+        if functional.any():
+            bound = self.thresholds[functional].max() * (1 + 1e-9) + 1e-150
+            distance, found = self.tree.query(obs[functional].astype(np.float64),
+                                              distance_upper_bound=bound)
+            rows = np.flatnonzero(functional)
+            for row, d, i in zip(rows, distance, found):
+                guided[row] = functional_discriminator(float(d), self.thresholds[row])
+                index[row] = i if guided[row] else -1
+        for k in np.flatnonzero(gate & ~functional):
+            gmm, log_threshold = self.gmms[k]
+            guided[k] = gmm_discriminator(gmm, obs[k].astype(np.float64), log_threshold)
+        return guided, index
+
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        gate = self.demo_return > self.policy_returns
+        guided, index = self.decide(obs, gate)
+        actions = self.agent.act(obs, need=~guided)
+        for k in np.flatnonzero(guided):
+            config = self.configs[k]
+            if config.guider == "functional":
+                i = index[k] if index[k] >= 0 else self.tree.query(obs[k].astype(np.float64))[1]
+                actions[k] = functional_guider(self.demo_actions, i, config.guide_noise_std,
+                                               self.rngs[k], self.low, self.high)
+            else:
+                with torch.no_grad():
+                    mean = self.nets[k](torch.as_tensor(obs[k], dtype=torch.float32)[None]
+                                        ).numpy()[0]
+                noisy = mean + config.guide_noise_std * self.rngs[k].standard_normal(mean.shape)
+                actions[k] = np.clip(noisy, self.low, self.high).astype(np.float32)
+        return actions, guided
+
+    def after_eval(self, k: int, mean_return: float) -> bool:
+        self.policy_returns[k] = mean_return
+        return bool(self.demo_return > mean_return)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"policy_returns": self.policy_returns.copy(), "guider_rngs": self.rngs}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.policy_returns = state["policy_returns"].copy()
+        self.rngs = state["guider_rngs"]
+
+
+def evaluate_members(envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int,
+                     members: np.ndarray) -> list[list[float]]:
+    """``episodes`` deterministic episodes for each member in ``members``, its env stepped
+    only while it still needs one (as ``baselines.common.evaluation.evaluate`` does)."""
+    returns: list[list[float]] = [[] for _ in range(envs.n)]
+    totals = np.zeros(envs.n)
+    running = np.asarray(members, dtype=bool).copy()
+    if not running.any():
+        return returns
+    obs = envs.reset(which=running)
+    while running.any():
+        more = running & np.array([len(r) + 1 < episodes for r in returns])
+        result = envs.step(act(obs), active=running, reset_done=more)
+        for k in np.flatnonzero(running):
+            totals[k] += result.rewards[k]
+            if result.terminated[k] or result.truncated[k]:
+                returns[k].append(float(totals[k]))
+                totals[k] = 0.0
+                running[k] = len(returns[k]) < episodes
+        obs = result.obs
+    return returns
+
+
+DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the losses on a GPU
+
+
+def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
+                           explorer: StackedExplorer) -> None:
+    """``run_off_policy`` for a batch: N envs, N buffers, N curves, one update per step."""
+    cfg = agent.config
+    torch.set_num_threads(cfg.torch_threads)
+    env_id, total_steps = bctx.shared("env_id"), bctx.shared("total_steps")
+    eval_interval, eval_episodes = bctx.shared("eval_interval"), bctx.shared("eval_episodes")
+    seeds, n = bctx.seeds, len(bctx.members)
+    envs = EnvBatch(env_id, seeds, bctx.env_workers)
+    eval_envs = EnvBatch(env_id, [s + EVAL_SEED_OFFSET for s in seeds], bctx.env_workers)
+    agent.buffer = StackedReplay(n, envs.obs_dim, agent.act_dim,
+                                 min(cfg.buffer_size, total_steps), agent.device)
+    buffer = agent.buffer
+    batch_rngs = [np.random.default_rng(seed) for seed in seeds]
+    curves: list[list[EvalPoint]] = [[] for _ in range(n)]
+    alive = np.ones(n, dtype=bool)
+    guided_steps = np.zeros(n, dtype=np.int64)
+    steps_since_eval = 0
+
+    def fail(k: int, reason: str) -> None:
+        alive[k] = False
+        bctx.on_member_failed(k, reason)
+
+    def evaluate_and_record(step: int) -> None:
+        returns = evaluate_members(eval_envs, agent.act_deterministic, eval_episodes, alive)
+        for k in np.flatnonzero(alive):
+            gate = explorer.after_eval(k, float(np.mean(returns[k])))
+            fraction = guided_steps[k] / steps_since_eval if steps_since_eval else float("nan")
+            point = EvalPoint(step, tuple(returns[k]), float(fraction), gate)
+            curves[k].append(point)
+            bctx.members[k].on_eval(point)
+
+    def save(step: int) -> None:
+        save_checkpoint(bctx.checkpoint_path, {
+            "step": step, "device": agent.device.type, "seeds": seeds,
+            "agent": agent_state(agent), "explorer": explorer.state_dict(),
+            "buffer": buffer.state_dict(), "batch_rngs": batch_rngs, "curves": curves,
+            "alive": alive.copy(), "obs": obs.copy(), "guided_steps": guided_steps.copy(),
+            "steps_since_eval": steps_since_eval, "envs": envs.snapshot(),
+            "eval_envs": eval_envs.snapshot()})
+
+    try:
+        resumed = load_checkpoint(bctx.checkpoint_path)
+        if resumed is None:
+            start = 1
+            evaluate_and_record(0)
+            obs = envs.reset(seeds=seeds)
+        else:
+            if resumed["device"] != agent.device.type:
+                raise CheckpointDeviceError(
+                    f"the batch checkpoint at {bctx.checkpoint_path} was made on "
+                    f"{resumed['device']}; resume it with --device {resumed['device']}, or "
+                    f"delete it to start over on {agent.device.type}")
+            if resumed["seeds"] != seeds:
+                raise ValueError(f"the checkpoint at {bctx.checkpoint_path} holds seeds "
+                                 f"{resumed['seeds']}, not {seeds}")
+            start = resumed["step"] + 1
+            load_agent_state(agent, resumed["agent"])
+            explorer.load_state_dict(resumed["explorer"])
+            buffer.load_state_dict(resumed["buffer"])
+            batch_rngs = resumed["batch_rngs"]
+            alive[:] = resumed["alive"]
+            guided_steps[:] = resumed["guided_steps"]
+            steps_since_eval = resumed["steps_since_eval"]
+            obs = resumed["obs"]
+            replayed = envs.restore(resumed["envs"])
+            for k in np.flatnonzero(alive):
+                if replayed[k] is None or not np.array_equal(replayed[k], obs[k]):
+                    raise RuntimeError(f"member {k}'s env did not come back to its "
+                                       "checkpointed state on replay (is it deterministic?)")
+            eval_envs.restore(resumed["eval_envs"])
+            bctx.on_resume(resumed["step"])
+            for k in range(n):
+                for point in resumed["curves"][k]:
+                    curves[k].append(point)
+                    bctx.members[k].on_eval(point)
+            bctx.on_steps(resumed["step"] * int(alive.sum()))
+        last_checkpoint = start - 1
+        idle_action = np.zeros(agent.act_dim, dtype=np.float32)
+
+        for step in range(start, total_steps + 1):
+            actions, guided = explorer.choose(obs)
+            actions[~alive] = idle_action
+            result = envs.step(actions, active=alive)
+            buffer.add(obs, actions, result.rewards, result.next_obs, result.terminated)
+            obs = result.obs
+            guided_steps += guided & alive
+            steps_since_eval += 1
+
+            if step >= cfg.learning_starts:
+                for _ in range(cfg.gradient_steps):
+                    losses = agent.update(batch_rngs)
+                look = (agent.device.type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0
+                        or step == total_steps)
+                if look:
+                    q_loss = losses["q_loss"].cpu().numpy()
+                    for k in np.flatnonzero(alive & ~np.isfinite(q_loss)):
+                        fail(k, f"diverged at step {step}: losses "
+                                f"{ {name: float(v[k]) for name, v in losses.items()} }")
+
+            if step % eval_interval == 0 or step == total_steps:
+                evaluate_and_record(step)
+                guided_steps[:] = 0
+                steps_since_eval = 0
+            bctx.on_steps(int(alive.sum()))
+            if not alive.any():
+                break
+            if bctx.checkpoint_path is not None and step < total_steps \
+                    and due(step, last_checkpoint, bctx.checkpoint_interval):
+                save(step)
+                last_checkpoint = step
+    finally:
+        envs.close()
+        eval_envs.close()
+
+
+def _one_run_agents(bctx: BatchContext, configs: list, build: Callable) -> list:
+    """The one-run agent of each member's seed, on the CPU: their weights and noise
+    generators become the batch's."""
+    obs_dim, act_dim, low, high = _space(bctx.shared("env_id"))
+    return [build(obs_dim, act_dim, low, high, config, seed=seed, device="cpu",
+                  cuda_graphs=False) for config, seed in zip(configs, bctx.seeds)]
+
+
+def stacked_agent(bctx: BatchContext, configs: list, twin_q: bool) -> StackedActor:
+    """The batch's agent, built member by member as the one-run path builds it."""
+    if bctx.device != "cpu":
+        torch.cuda.manual_seed(bctx.seeds[0] + 1)  # the batch's device stream
+    if twin_q:
+        return StackedTwinQAgent(_one_run_agents(bctx, configs, TwinQSACAgent), configs[0],
+                                 bctx.device, bctx.cuda_graphs)
+    return StackedSACAgent(_one_run_agents(bctx, configs, SACAgent), configs[0], bctx.device,
+                           bctx.cuda_graphs)
+
+
+def _train_stacked(bctx: BatchContext, configs: list, twin_q: bool, guided: bool) -> None:
+    agent = stacked_agent(bctx, configs, twin_q)
+    if not guided:
+        return run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
+    demos = bctx.members[0].demos
+    if demos is None:
+        raise ValueError("DRL-EG needs demonstrations")
+    low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
+    high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
+    explorer = StackedGuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
+    return run_stacked_off_policy(bctx, agent, explorer)
+
+
+# What may differ between the members of a batch: the rest of the config is shared.
+MEMBER_SETTINGS = ("guide_threshold", "guide_noise_std")
+
+
+@register_batched("sac")
+def train_sac(bctx: BatchContext, configs: list[SACConfig]) -> None:
+    _train_stacked(bctx, configs, twin_q=False, guided=False)
+
+
+@register_batched("sac-twin-q")
+def train_sac_twin_q(bctx: BatchContext, configs: list[TwinQSACConfig]) -> None:
+    _train_stacked(bctx, configs, twin_q=True, guided=False)
+
+
+@register_batched("drl-eg")
+@register_batched("drl-eg-gmm")
+def train_drl_eg(bctx: BatchContext, configs: list[DRLEGConfig]) -> None:
+    _train_stacked(bctx, configs, twin_q=False, guided=True)
+
+
+@register_batched("drl-eg-twin-q")
+def train_drl_eg_twin_q(bctx: BatchContext, configs: list[DRLEGTwinQConfig]) -> None:
+    _train_stacked(bctx, configs, twin_q=True, guided=True)
+
+
+def batch_memory_bytes(obs_dim: int, act_dim: int, capacity: int, members: int) -> int:
+    """Device memory the replay of ``members`` needs (networks and activations are small
+    beside it at 1M transitions)."""
+    return members * StackedReplay.bytes_per_member(obs_dim, act_dim, capacity)
+
+
+__all__ = ["BatchContext", "MEMBER_SETTINGS", "StackedSACAgent", "StackedTwinQAgent",
+           "StackedExplorer", "StackedGuidedExplorer", "batch_memory_bytes",
+           "evaluate_members", "run_stacked_off_policy", "stacked_agent"]

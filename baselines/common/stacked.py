@@ -1,0 +1,145 @@
+"""Pieces of seed-batched training: N members' networks as stacked weights, and their replay.
+
+Member k of a batch is one run: its weights are the slices ``[k]`` of every stacked tensor,
+and every layer is one batched matrix product over the members, so the members are
+computed together but never mixed. Losses are summed over members only to call backward
+once: the gradient of a sum is each member's own gradient, and Adam is elementwise, so no
+statistic is shared across members.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from baselines.common.buffer import Batch
+from baselines.common.networks import LOG_STD_MIN, LOG_STD_MAX, squashed_sample
+
+
+class StackedMLP(nn.Module):
+    """``members`` MLPs with ReLU between layers; weights (members, in, out), biases
+    (members, 1, out). ``forward`` maps (members, batch, in) to (members, batch, out)."""
+
+    def __init__(self, weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor]):
+        super().__init__()
+        self.weights = nn.ParameterList(nn.Parameter(w.detach().clone()) for w in weights)
+        self.biases = nn.ParameterList(nn.Parameter(b.detach().clone()) for b in biases)
+
+    @classmethod
+    def stack(cls, networks: Sequence[nn.Sequential]) -> StackedMLP:
+        """Stack the ``nn.Linear`` layers of equal-shaped ``networks``, in order."""
+        layers = [[m for m in net if isinstance(m, nn.Linear)] for net in networks]
+        weights = [torch.stack([member[i].weight.detach().T for member in layers])
+                   for i in range(len(layers[0]))]
+        biases = [torch.stack([member[i].bias.detach()[None, :] for member in layers])
+                  for i in range(len(layers[0]))]
+        return cls(weights, biases)
+
+    @property
+    def members(self) -> int:
+        return self.weights[0].shape[0]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        last = len(self.weights) - 1
+        for k, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(bias, x, weight)
+            if k < last:
+                x = torch.relu(x)
+        return x
+
+    def member_linear(self, k: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Member ``k``'s layers as ``nn.Linear`` stores them: (weight (out, in), bias)."""
+        return [(w[k].T.detach(), b[k, 0].detach()) for w, b in zip(self.weights, self.biases)]
+
+
+class StackedPolicy(nn.Module):
+    """Tanh-squashed Gaussian policies of N members (``TanhGaussianPolicy`` batched)."""
+
+    def __init__(self, trunk: StackedMLP, action_scale: torch.Tensor, action_bias: torch.Tensor):
+        super().__init__()
+        self.trunk = trunk
+        self.register_buffer("action_scale", action_scale.detach().clone())
+        self.register_buffer("action_bias", action_bias.detach().clone())
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = self.trunk(obs).chunk(2, dim=-1)
+        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+    def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
+        mean, _ = self(obs)
+        return self.action_bias + self.action_scale * torch.tanh(mean)
+
+    def sample(self, obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = self(obs)
+        return squashed_sample(mean, log_std, noise, self.action_scale, self.action_bias)
+
+
+def pair_critics(q1: Sequence[nn.Sequential], q2: Sequence[nn.Sequential]) -> StackedMLP:
+    """Two critics per member as one stack of 2N, member-major: (m0 Q1, m0 Q2, m1 Q1, ...)."""
+    return StackedMLP.stack([net for pair in zip(q1, q2) for net in pair])
+
+
+def critic_pairs(critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+    """Q of both critics of every member: (N, B, .) inputs to (N, 2, B)."""
+    members, rows = obs.shape[0], obs.shape[1]
+    pairs = torch.cat([obs, act], dim=-1).unsqueeze(1).expand(-1, 2, -1, -1)
+    return critics(pairs.reshape(2 * members, rows, -1)).view(members, 2, rows)
+
+
+class StackedReplay:
+    """One replay buffer per member, stored together: (members, capacity, width) float32 on
+    the training device, each row (s, a, r, s', terminated). All members add one transition
+    per step, so they share the write position and the size."""
+
+    def __init__(self, members: int, obs_dim: int, act_dim: int, capacity: int,
+                 device: torch.device):
+        if capacity <= 0:
+            raise ValueError(f"replay capacity must be positive, got {capacity}")
+        self.obs_dim, self.act_dim, self.capacity = obs_dim, act_dim, capacity
+        self.width = 2 * obs_dim + act_dim + 2
+        self.device = device
+        self.data = torch.zeros((members, capacity, self.width), dtype=torch.float32,
+                                device=device)
+        self.position = 0
+        self.size = 0
+        self._members = torch.arange(members, device=device)[:, None]
+
+    @staticmethod
+    def bytes_per_member(obs_dim: int, act_dim: int, capacity: int) -> int:
+        return 4 * capacity * (2 * obs_dim + act_dim + 2)
+
+    def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
+            next_obs: np.ndarray, terminated: np.ndarray) -> None:
+        row = np.concatenate([obs, actions, rewards[:, None], next_obs,
+                              terminated[:, None]], axis=1).astype(np.float32)
+        self.data[:, self.position] = torch.from_numpy(row).to(self.device, non_blocking=True)
+        self.position = (self.position + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def gather(self, indices: torch.Tensor) -> Batch:
+        """Member k's rows ``indices[k]`` (N, B) as one stacked batch."""
+        rows = self.data[self._members, indices]
+        o, a = self.obs_dim, self.act_dim
+        return Batch(observations=rows[..., :o], actions=rows[..., o:o + a],
+                     rewards=rows[..., o + a], next_observations=rows[..., o + a + 1:2 * o + a + 1],
+                     terminated=rows[..., -1])
+
+    def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
+        """Uniform with replacement, member k's indices from ``rngs[k]`` alone (as
+        ``ReplayBuffer.sample`` draws them)."""
+        indices = np.stack([rng.integers(0, self.size, size=batch_size) for rng in rngs])
+        return self.gather(torch.from_numpy(indices).to(self.device))
+
+    def state_dict(self) -> dict[str, object]:
+        return {"data": self.data[:, :self.size].cpu().clone(), "position": self.position}
+
+    def load_state_dict(self, state: dict) -> None:
+        n = state["data"].shape[1]
+        if n > self.capacity:
+            raise ValueError(f"saved buffer holds {n} transitions, capacity is {self.capacity}")
+        self.data[:, :n] = state["data"].to(self.device)
+        self.size = n
+        self.position = int(state["position"])
