@@ -1,0 +1,294 @@
+"""Seed-batched training against one run per process (``baselines.batched``).
+
+CPU section (``--cpu``): on this machine's cores, N = 1, 2, 4, 8 members of V-SAC on Hopper-v5
+in one process per core against one run per process, env steps per second summed over the
+machine; and one V-SAC update in fp32 against bf16 autocast.
+
+GPU section (``--gpu``): N = 8, 16, 32, 64 members of V-SAC and DRL-EG on Hopper-v5 and
+Ant-v5 (paper hyperparameters, batch 256 per member, one gradient step per env step), env
+steps per second summed over the members, the GPU memory, where a batched step's time goes,
+the one-run GPU path beside it, and the projected wall time of ``--profile paper`` Fig. 3
+and Fig. 4 from the measured rates.
+
+Each measurement trains from scratch: ``WARMUP`` steps from the initial policy, then
+``--steps`` timed steps with updates. Results go to ``--out`` as JSON, written after each
+measurement so that a cut-off run keeps what it finished.
+
+    python benchmarks/batched.py --cpu
+    python benchmarks/batched.py --gpu --out reports/bench/batched_gpu.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from baselines.batched import BatchContext, run_stacked_off_policy, stacked_agent  # noqa: E402
+from baselines.batched import StackedExplorer, StackedGuidedExplorer  # noqa: E402
+from baselines.common.context import TrainContext  # noqa: E402
+from baselines.common.stacked import StackedReplay  # noqa: E402
+from baselines.registry import get_algorithm  # noqa: E402
+from envs import env_spec  # noqa: E402
+
+WARMUP = 1000  # env steps before the first update, as in the harness's SAC
+HUGE = 10**9  # an evaluation interval no bench run reaches
+
+
+class StepClock:
+    """Counts env steps (summed over members) and times the steps after the warm-up, up to
+    the one before the last (the last is followed by the final evaluation)."""
+
+    def __init__(self, members: int, warmup: int, total: int):
+        self.members, self.warmup, self.total = members, warmup, total
+        self.steps = 0
+        self.start: float | None = None
+        self.end: float | None = None
+        self.start_steps = self.end_steps = 0
+
+    def __call__(self, n: int) -> None:
+        self.steps += n
+        if self.start is None and self.steps >= (self.warmup + 1) * self.members:
+            self.start, self.start_steps = time.perf_counter(), self.steps
+        if self.end is None and self.steps >= (self.total - 1) * self.members:
+            self.end, self.end_steps = time.perf_counter(), self.steps
+
+    def rate(self) -> float:
+        return round((self.end_steps - self.start_steps) / (self.end - self.start), 1)
+
+
+def demos_of(env_id: str):
+    from replicate.demos import default_demo_path, load_demos
+
+    return load_demos(default_demo_path(env_id), env_id)
+
+
+def batched_rate(algo: str, env_id: str, members: int, steps: int, device: str,
+                 env_workers: int, guide_threshold: float | None = None) -> dict:
+    """Train ``members`` seeds of ``algo`` for WARMUP + ``steps`` steps; summed env steps/s
+    over the timed steps."""
+    algorithm = get_algorithm(algo)
+    overrides = {} if guide_threshold is None else {"guide_threshold": guide_threshold}
+    configs = [algorithm.make_config(overrides) for _ in range(members)]
+    demos = demos_of(env_id) if algorithm.needs_demos else None
+    total = WARMUP + steps
+    contexts = [TrainContext(env_id=env_id, seed=seed, total_steps=total, eval_interval=HUGE,
+                             eval_episodes=1, demos=demos) for seed in range(members)]
+    clock = StepClock(members, WARMUP, total)
+    bctx = BatchContext(contexts, device=device, env_workers=env_workers, on_steps=clock)
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    agent = stacked_agent(bctx, configs, twin_q=False)
+    if algorithm.needs_demos:
+        low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
+        high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
+        explorer = StackedGuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
+    else:
+        explorer = StackedExplorer(agent)
+    started = time.perf_counter()
+    run_stacked_off_policy(bctx, agent, explorer)
+    ended = time.perf_counter()
+    result = {"algo": algo, "env": env_id, "members": members, "device": device,
+              "env_workers": env_workers, "timed_steps_per_member": steps,
+              "env_steps_per_s": clock.rate(), "wall_s": round(ended - started, 1)}
+    if device == "cuda":
+        result["gpu_memory_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 3)
+    return result
+
+
+def one_run_rate(algo: str, env_id: str, steps: int, device: str) -> dict:
+    """The one-run path (``baselines.sac.run_off_policy``) for comparison."""
+    algorithm = get_algorithm(algo)
+    demos = demos_of(env_id) if algorithm.needs_demos else None
+    clock = StepClock(1, WARMUP, WARMUP + steps)
+    ctx = TrainContext(env_id=env_id, seed=0, total_steps=WARMUP + steps, eval_interval=HUGE,
+                       eval_episodes=1, demos=demos, on_steps=clock, device=device)
+    algorithm.train(ctx, algorithm.make_config({}))
+    return {"algo": algo, "env": env_id, "members": 1, "device": device, "path": "one run",
+            "env_steps_per_s": clock.rate()}
+
+
+def step_time_split(env_id: str, members: int, device: str, env_workers: int,
+                    calls: int = 300) -> dict[str, float]:
+    """Milliseconds per batched step in each part, each timed alone with the device
+    synchronised: the policy's action, the env step, the replay write, the update."""
+    from envs.vector import EnvBatch
+
+    algorithm = get_algorithm("sac")
+    configs = [algorithm.make_config({}) for _ in range(members)]
+    contexts = [TrainContext(env_id=env_id, seed=s, total_steps=10**6, eval_interval=HUGE,
+                             eval_episodes=1) for s in range(members)]
+    bctx = BatchContext(contexts, device=device, env_workers=env_workers)
+    agent = stacked_agent(bctx, configs, twin_q=False)
+    spec = env_spec(env_id)
+    agent.buffer = StackedReplay(members, spec.obs_dim, spec.act_dim, 10_000, agent.device)
+    rngs = [np.random.default_rng(s) for s in range(members)]
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
+    with EnvBatch(env_id, list(range(members)), env_workers) as envs:
+        obs = envs.reset(seeds=list(range(members)))
+        timings: dict[str, float] = {}
+
+        def timed(name: str, fn) -> object:
+            sync()
+            start = time.perf_counter()
+            out = fn()
+            sync()
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - start
+            return out
+
+        for i in range(calls + 10):
+            if i == 10:
+                timings = {}
+            actions = timed("policy action", lambda: agent.act(obs))
+            result = timed("env step", lambda: envs.step(actions))
+            timed("replay write", lambda: agent.buffer.add(obs, actions, result.rewards,
+                                                           result.next_obs, result.terminated))
+            obs = result.obs
+            timed("gradient step", lambda: agent.update(rngs))
+    return {name: round(1000 * seconds / calls, 3) for name, seconds in timings.items()}
+
+
+def update_precision(calls: int = 50) -> dict[str, float]:
+    """Milliseconds per V-SAC update of one member on one thread: fp32 and bf16 autocast."""
+    from baselines.common.buffer import Batch
+
+    torch.set_num_threads(1)
+    contexts = [TrainContext(env_id="Hopper-v5", seed=0, total_steps=10**6,
+                             eval_interval=HUGE, eval_episodes=1)]
+    bctx = BatchContext(contexts)
+    agent = stacked_agent(bctx, [get_algorithm("sac").make_config({})], twin_q=False)
+    g = torch.Generator().manual_seed(0)
+    batch = Batch(torch.randn(1, 256, 11, generator=g), torch.rand(1, 256, 3, generator=g),
+                  torch.randn(1, 256, generator=g), torch.randn(1, 256, 11, generator=g),
+                  torch.zeros(1, 256))
+    noise = torch.randn(1, 256, 3, generator=g)
+    out = {}
+    for name, autocast in (("fp32", False), ("bf16 autocast", True)):
+        for _ in range(5):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+                agent._gradient_step(batch, noise)
+        start = time.perf_counter()
+        for _ in range(calls):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+                agent._gradient_step(batch, noise)
+        out[name] = round(1000 * (time.perf_counter() - start) / calls, 3)
+    out["bf16 / fp32"] = round(out["bf16 autocast"] / out["fp32"], 3)
+    return out
+
+
+def _cpu_process(job: tuple[int, int]) -> float:
+    members, steps = job
+    torch.set_num_threads(1)
+    return batched_rate("sac", "Hopper-v5", members, steps, "cpu", 0)["env_steps_per_s"]
+
+
+def _cpu_one_run(steps: int) -> float:
+    torch.set_num_threads(1)
+    return one_run_rate("sac", "Hopper-v5", steps, "cpu")["env_steps_per_s"]
+
+
+def cpu_section(steps: int, write) -> None:
+    """Per machine: one process per core, each a batch of N, against one run per process."""
+    cores = os.cpu_count() or 1
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(cores) as pool:
+        one = sum(pool.map(_cpu_one_run, [steps] * cores))
+        write("cpu", {"machine one run per process": round(one, 1)})
+        for members in (1, 2, 4, 8):
+            rate = sum(pool.map(_cpu_process, [(members, max(200, steps // members))] * cores))
+            write("cpu", {f"machine batched N={members} per process": round(rate, 1),
+                          f"batched N={members} / one run per process": round(rate / one, 3)})
+    write("cpu", {"update ms": update_precision()})
+
+
+# --profile paper: off-policy runs that the batched trainer trains (env steps).
+PAPER_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+
+
+def gpu_section(steps: int, write, env_workers: int) -> None:
+    rates: dict[tuple[str, str, int], float] = {}
+    for env_id in ("Hopper-v5", "Ant-v5"):
+        spec = env_spec(env_id)
+        per_member = StackedReplay.bytes_per_member(spec.obs_dim, spec.act_dim, 1_000_000)
+        write("replay_memory_at_1M", {f"{env_id} GiB per member": round(per_member / 2**30, 3)})
+    for env_id, sizes in (("Hopper-v5", (8, 16, 32, 64)), ("Ant-v5", (8, 16, 32, 64))):
+        for algo in ("sac", "drl-eg"):
+            for members in sizes:
+                try:
+                    result = batched_rate(algo, env_id, members, steps, "cuda", env_workers)
+                except Exception:
+                    write("gpu_errors", {f"{algo} {env_id} N={members}": traceback.format_exc()})
+                    continue
+                rates[(algo, env_id, members)] = result["env_steps_per_s"]
+                write("gpu_batched", {f"{algo} {env_id} N={members}": result})
+    for env_id in ("Hopper-v5", "Ant-v5"):
+        try:
+            write("gpu_one_run", {f"sac {env_id}": one_run_rate("sac", env_id, steps, "cuda")})
+        except Exception:
+            write("gpu_errors", {f"one run {env_id}": traceback.format_exc()})
+    try:
+        write("gpu_step_split_ms", {"sac Hopper-v5 N=64": step_time_split(
+            "Hopper-v5", 64, "cuda", env_workers)})
+    except Exception:
+        write("gpu_errors", {"split": traceback.format_exc()})
+    # Projection: Hopper's rate stands for Walker2d and HalfCheetah (same sizes within 2x),
+    # Ant's for Ant; the best measured N of each.
+    best = {}
+    for (algo, env_id, members), rate in rates.items():
+        best[(algo, env_id)] = max(best.get((algo, env_id), 0.0), rate)
+    if best:
+        def rate_of(algo: str, env_id: str) -> float:
+            source = "Ant-v5" if env_id == "Ant-v5" else "Hopper-v5"
+            return best.get((algo, source)) or best.get(("sac", source), float("nan"))
+        fig3 = sum(5 * 1_000_000 / rate_of(a, e) for e in PAPER_ENVS
+                   for a in ("sac", "drl-eg", "drl-eg"))  # drl-eg-gmm costs about drl-eg
+        fig4 = sum(4 * 1_000_000 / rate_of(a, "Ant-v5") for a in ("sac", "drl-eg"))
+        write("projection", {
+            "fig3 batched part (sac, drl-eg, drl-eg-gmm; 4 MuJoCo envs x 5 seeds x 1M) hours":
+                round(fig3 / 3600, 2),
+            "fig4 (Ant, sac + drl-eg, 4 seeds x 1M) hours": round(fig4 / 3600, 2),
+            "assumes": "each cell's batch at the best measured summed rate, cells one after "
+                       "another; DDPGfD, PPO and PPO+BC (one run per process on the cores) "
+                       "are not in these hours"})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cpu", action="store_true", help="the CPU section")
+    parser.add_argument("--gpu", action="store_true", help="the GPU section")
+    parser.add_argument("--steps", type=int, default=1000,
+                        help="timed env steps per member after the warm-up")
+    parser.add_argument("--env-workers", type=int, default=max(0, (os.cpu_count() or 1) - 2))
+    parser.add_argument("--out", type=Path, default=Path("reports/bench/batched.json"))
+    args = parser.parse_args()
+    results: dict = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                                 "torch": torch.__version__,
+                                 "gpu": torch.cuda.get_device_name()
+                                 if torch.cuda.is_available() else None},
+                     "command": " ".join(sys.argv), "steps": args.steps}
+
+    def write(section: str, values: dict) -> None:
+        results.setdefault(section, {}).update(values)
+        print(json.dumps({section: values}), flush=True)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=1) + "\n")
+
+    if args.gpu:
+        gpu_section(args.steps, write, args.env_workers)
+    if args.cpu:
+        cpu_section(args.steps, write)
+
+
+if __name__ == "__main__":
+    main()
