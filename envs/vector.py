@@ -61,7 +61,7 @@ class _Slot:
     def snapshot(self) -> dict[str, Any]:
         return {"rng": copy.deepcopy(self.env.unwrapped.np_random),
                 "episode_start": copy.deepcopy(self.episode_start),
-                "actions": np.array(self.actions, dtype=np.float32).reshape(len(self.actions), -1)}
+                "actions": [action.copy() for action in self.actions]}
 
     def restore(self, state: dict[str, Any]) -> np.ndarray | None:
         """Back to ``state``; the observation of the episode in progress, if one was."""
