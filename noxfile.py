@@ -56,8 +56,16 @@ def bench(session: nox.Session) -> None:
     """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""
     _install(session)
     session.install("stable-baselines3==2.9.2")  # the reference, a bench-only dependency
-    session.run("python", "benchmarks/bench.py", *session.posargs,
-                env={"MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"})
+    session.install("pytest", "pytest-benchmark")
+    env = {"MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
+    session.run("python", "benchmarks/bench.py", *session.posargs, env=env)
+    # the seed-batched trainer: CPU section here, GPU section where torch sees a GPU
+    session.run("python", "benchmarks/batched.py", "--cpu", env=env)
+    session.run("python", "-c", "import torch, sys; sys.exit(0 if torch.cuda.is_available() "
+                "else 1)", success_codes=[0, 1], env=env)
+    # micro-benchmarks, saved so that two commits compare (pytest-benchmark compare)
+    session.run("pytest", "-q", "-p", "no:cacheprovider", "benchmarks/test_micro.py",
+                "--benchmark-json", "reports/bench/micro.json", env=env)
 
 
 @nox.session(name="replicate-table1", python=PYTHON)

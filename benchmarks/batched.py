@@ -119,6 +119,47 @@ def one_run_rate(algo: str, env_id: str, steps: int, device: str) -> dict:
             "env_steps_per_s": clock.rate()}
 
 
+def _concurrent_member(job: tuple) -> None:
+    algo, env_id, members, steps, env_workers, barrier, device, results = job
+    clock_box: dict = {}
+    original = StepClock.__call__
+
+    def tick(self: StepClock, n: int) -> None:  # keep the clock for its wall-clock times
+        original(self, n)
+        clock_box["clock"] = self
+
+    StepClock.__call__ = tick  # type: ignore[method-assign]
+    barrier.wait()
+    result = batched_rate(algo, env_id, members, steps, device, env_workers)
+    clock = clock_box["clock"]
+    offset = time.time() - time.perf_counter()
+    result.update(start=clock.start + offset, end=clock.end + offset,
+                  timed=clock.end_steps - clock.start_steps)
+    results.put(result)
+
+
+def concurrent_batches(algo: str, env_id: str, members: int, processes: int, steps: int,
+                       env_workers: int, device: str = "cuda") -> dict:
+    """``processes`` batches of ``members`` at once on one GPU (what a grid's workers do):
+    env steps/s summed over all of them, over the union of their timed windows."""
+    ctx = mp.get_context("spawn")
+    barrier, results = ctx.Barrier(processes), ctx.Queue()
+    procs = [ctx.Process(target=_concurrent_member, args=((algo, env_id, members, steps,
+                                                           env_workers, barrier, device,
+                                                           results),))
+             for _ in range(processes)]
+    for proc in procs:
+        proc.start()
+    parts = [results.get() for _ in procs]
+    for proc in procs:
+        proc.join()
+    window = max(p["end"] for p in parts) - min(p["start"] for p in parts)
+    return {"algo": algo, "env": env_id, "members per process": members,
+            "processes": processes, "env_workers per process": env_workers,
+            "env_steps_per_s": round(sum(p["timed"] for p in parts) / window, 1),
+            "each": [p["env_steps_per_s"] for p in parts]}
+
+
 def step_time_split(env_id: str, members: int, device: str, env_workers: int,
                     calls: int = 300) -> dict[str, float]:
     """Milliseconds per batched step in each part, each timed alone with the device
@@ -226,7 +267,7 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
         for algo in ("sac", "drl-eg"):
             for members in sizes:
                 try:
-                    result = batched_rate(algo, env_id, members, steps, "cuda", env_workers)
+                    result = batched_rate(algo, env_id, members, steps, device, env_workers)
                 except Exception:
                     write("gpu_errors", {f"{algo} {env_id} N={members}": traceback.format_exc()})
                     continue

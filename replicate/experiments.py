@@ -14,7 +14,6 @@ import os
 import queue
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,53 +24,10 @@ from baselines.common.device import worker_devices
 from replicate.errors import HarnessError
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
                               execute, execute_batch, is_complete, load_run, prepare)
+from replicate.profiles import (PAPER_BUDGETS, PAPER_SEEDS_FIG3, PROFILES, GridOutcome,  # noqa: F401
+                                Profile, get_profile, report_dir)
 from replicate.spec import RunSpec
 
-
-@dataclass(frozen=True)
-class Profile:
-    name: str
-    steps: dict[str, int]  # per env
-    eval_interval: dict[str, int]
-    eval_episodes: int
-    seeds: int
-    overrides: dict[str, Any] = field(default_factory=dict)  # applied to every algorithm
-    meaningful: bool = True
-    summary: str = ""
-
-
-# Budgets the paper states or shows. Its figures are missing from the source we have, so
-# the MountainCar budget is unknown; the MuJoCo x-axes run to about 1M steps.
-PAPER_BUDGETS: dict[str, str] = {
-    "MountainCarContinuous-v0": "not stated in the text (Fig. 3 image unavailable)",
-    "Hopper-v5": "about 1M env steps", "Walker2d-v5": "about 1M env steps",
-    "HalfCheetah-v5": "about 1M env steps", "Ant-v5": "about 1M env steps",
-}
-PAPER_SEEDS_FIG3 = 3
-
-PROFILES: dict[str, Profile] = {
-    "smoke": Profile(
-        "smoke", steps={"MountainCarContinuous-v0": 1200},
-        eval_interval={"MountainCarContinuous-v0": 400}, eval_episodes=1, seeds=2,
-        overrides={"hidden_sizes": (32, 32), "batch_size": 32, "learning_starts": 400,
-                   "rollout_steps": 400, "bc_steps": 200},
-        meaningful=False,
-        summary="seconds per run, tiny networks"),
-    "quick": Profile(
-        "quick", steps={"MountainCarContinuous-v0": 20_000},
-        eval_interval={"MountainCarContinuous-v0": 1000}, eval_episodes=5, seeds=4,
-        summary="reduced budget and seeds with the paper's networks and hyperparameters; "
-                "MountainCar only: a MuJoCo cell alone costs hours of CPU per seed"),
-    "paper": Profile(
-        "paper", steps={"MountainCarContinuous-v0": 100_000, **{
-            env_id: 1_000_000 for env_id in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5",
-                                             "Ant-v5")}},
-        eval_interval={"MountainCarContinuous-v0": 2000, **{
-            env_id: 10_000 for env_id in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5",
-                                          "Ant-v5")}},
-        eval_episodes=10, seeds=5,
-        summary="full budgets and >= 5 seeds; meant for a cluster or a GPU machine"),
-}
 
 # Per-env values of what the paper leaves open (T2 in raw state units, sigma in action units).
 # An env not listed takes T2 from its demonstrations (drl_eg_env_defaults).
@@ -96,19 +52,6 @@ def drl_eg_env_defaults(env_id: str) -> dict[str, float]:
             "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
 
 FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
-
-
-def get_profile(name: str) -> Profile:
-    if name not in PROFILES:
-        raise HarnessError(f"unknown profile '{name}'; known profiles: {', '.join(PROFILES)}",
-                           "pass --profile smoke, quick or paper")
-    return PROFILES[name]
-
-
-def report_dir(profile: str, name: str) -> Path:
-    """Where a report goes by default: ``reports/<name>``, or under ``reports/smoke/`` for
-    the smoke profile, whose numbers mean nothing and are never committed."""
-    return Path("reports/smoke" if profile == "smoke" else "reports") / name
 
 
 def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -146,14 +89,6 @@ def figure3_grid(profile: Profile, seeds: int | None = None
                                      eval_episodes=profile.eval_episodes,
                                      hyperparameters=hyper))
     return specs, skipped
-
-
-@dataclass
-class GridOutcome:
-    runs: list[Run]
-    failed: list[tuple[str, str]]  # (run id, reason)
-    wall_time_s: float | None  # None: rebuilt from the store, nothing trained
-    skipped: list[tuple[str, str, str]] = field(default_factory=list)  # (env, algo, reason)
 
 
 ORPHANED_EXIT_CODE = 3

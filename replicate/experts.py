@@ -28,7 +28,7 @@ from baselines.registry import get_algorithm
 from envs import env_spec, make_env
 from replicate import provenance
 from replicate.errors import HarnessError
-from replicate.runner import check_device
+from replicate.devices import check_device
 
 EXPERT_DATA_DIR = "data/experts"
 EXPERT_ALGOS = ("sac", "sac-twin-q")

@@ -16,7 +16,7 @@ import jinja2
 import numpy as np
 
 from replicate import provenance
-from replicate.experiments import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
+from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
 from replicate.claims import Group, judge_claims

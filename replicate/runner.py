@@ -36,11 +36,11 @@ import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError
 from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.device import (DeviceUnavailableError, describe_device, device_kind,
-                                     resolve_device, resume_device)
+from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import get_algorithm
 from replicate import provenance
 from replicate.demos import Demonstrations, default_demo_path, load_demos
+from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.errors import HarnessError
 from replicate.spec import RunSpec, spec_hash
 
@@ -141,15 +141,6 @@ RECURRING_ERRORS = (FloatingPointError, ValueError, TypeError, KeyError, IndexEr
 
 def partial_directory(prepared: PreparedRun, store: Path) -> Path:
     return Path(store) / f".partial-{prepared.run_id}"
-
-
-def check_device(requested: str) -> None:
-    """Fail early, with the fix, when ``requested`` (``--device``) cannot be honoured here."""
-    try:
-        resolve_device(requested, has_gpu_path=True)
-    except (ValueError, DeviceUnavailableError) as exc:
-        raise HarnessError(str(exc), "pass --device auto (GPU when present) or --device cpu"
-                           ) from None
 
 
 def execute(prepared: PreparedRun, store: Path,
