@@ -139,11 +139,17 @@ class StackedActor:
         batch = self.buffer.gather(indices)
         return self._gradient_step(batch, self._device_noise(batch))
 
+    # bf16 autocast of the CPU update: a measurement (benchmarks/bf16_curves.py), not a
+    # setting of the harness; None keeps fp32
+    cpu_autocast: torch.dtype | None = None
+
     def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
         """One gradient step of every member on its own minibatch; per-member losses (N,)."""
         if self.device.type == "cpu":
             batch = self.buffer.sample(self.batch_size, rngs)
-            return self._gradient_step(batch, self._cpu_noise())
+            with torch.autocast("cpu", dtype=self.cpu_autocast or torch.bfloat16,
+                                enabled=self.cpu_autocast is not None):
+                return self._gradient_step(batch, self._cpu_noise())
         self._size.fill_(self.buffer.size)
         return self._update_graph(size=self._size)
 

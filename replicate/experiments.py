@@ -190,15 +190,19 @@ def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
     return {key: sum(values) / len(values) for key, values in rates.items()}
 
 
-def estimate_minutes(missing: list[PreparedRun], store: Path, workers: int) -> float:
-    """Wall minutes to train ``missing`` on ``workers`` processes, from the speed each
-    algorithm had on each env in the store (the same algorithm elsewhere, else a guess)."""
+def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
+                     workers: int) -> float:
+    """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
+    once) on ``workers`` processes, from the speed each algorithm had on each env in the
+    store (the same algorithm elsewhere, else a guess). A batch is costed as one of its
+    runs: an estimate, since a batched run's recorded speed depends on its batch's size."""
     rates = _measured_rates(store)
     by_algo: dict[str, list[float]] = {}
     for (algo, _), rate in rates.items():
         by_algo.setdefault(algo, []).append(rate)
     seconds = 0.0
-    for p in missing:
+    for task in tasks:
+        p = task[0] if isinstance(task, list) else task
         rate = rates.get((p.spec.algo, p.spec.env_id)) or (
             min(by_algo[p.spec.algo]) if p.spec.algo in by_algo else DEFAULT_STEPS_PER_S)
         seconds += p.spec.total_steps / rate
@@ -301,7 +305,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
           f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps on "
           f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
-          f"estimated {estimate_minutes(missing, store, workers):.0f} min on this machine "
+          f"estimated {estimate_minutes(tasks, store, workers):.0f} min on this machine "
           "(from the speeds of the store's runs)", flush=True)
 
     started = time.time()
