@@ -76,6 +76,18 @@ class PreparedRun:
         return Path(store) / self.run_id
 
 
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def portable_path(path: Path) -> str:
+    """``path`` relative to the project's root when it lies inside it (a committed run names
+    no directory of the machine that trained it), else as given."""
+    try:
+        return Path(path).resolve().relative_to(PROJECT_ROOT).as_posix()
+    except ValueError:
+        return str(path)
+
+
 def prepare(spec: RunSpec) -> PreparedRun:
     """Validate ``spec``, load its demonstrations, resolve defaults and compute its address."""
     spec.validate()
@@ -91,7 +103,7 @@ def prepare(spec: RunSpec) -> PreparedRun:
         path = Path(spec.demos) if spec.demos else default_demo_path(spec.env_id)
         demos = load_demos(path, spec.env_id)
         demo_info = {"sha256": demos.sha256, "n_pairs": len(demos.observations),
-                     "expert_return_mean": demos.mean_return, "path": str(path)}
+                     "expert_return_mean": demos.mean_return, "path": portable_path(path)}
     resolved = {
         "algo": spec.algo, "env_id": spec.env_id, "seed": spec.seed,
         "total_steps": spec.total_steps, "eval_interval": spec.eval_interval,
