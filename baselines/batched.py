@@ -483,11 +483,13 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
     batch_rngs = [np.random.default_rng(seed) for seed in seeds]
     curves: list[list[EvalPoint]] = [[] for _ in range(n)]
     alive = np.ones(n, dtype=bool)
+    failures: dict[int, str] = {}
     guided_steps = np.zeros(n, dtype=np.int64)
     steps_since_eval = 0
 
     def fail(k: int, reason: str) -> None:
         alive[k] = False
+        failures[k] = reason
         bctx.on_member_failed(k, reason)
 
     def evaluate_and_record(step: int) -> None:
@@ -504,7 +506,8 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             "step": step, "device": agent.device.type, "seeds": seeds,
             "agent": agent_state(agent), "explorer": explorer.state_dict(),
             "buffer": buffer.state_dict(), "batch_rngs": batch_rngs, "curves": curves,
-            "alive": alive.copy(), "obs": obs.copy(), "guided_steps": guided_steps.copy(),
+            "alive": alive.copy(), "failures": dict(failures), "obs": obs.copy(),
+            "guided_steps": guided_steps.copy(),
             "steps_since_eval": steps_since_eval, "envs": envs.snapshot(),
             "eval_envs": eval_envs.snapshot()})
 
@@ -529,6 +532,8 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             buffer.load_state_dict(resumed["buffer"])
             batch_rngs = resumed["batch_rngs"]
             alive[:] = resumed["alive"]
+            for k, reason in resumed["failures"].items():  # failed before the checkpoint
+                fail(k, reason)
             guided_steps[:] = resumed["guided_steps"]
             steps_since_eval = resumed["steps_since_eval"]
             obs = resumed["obs"]
@@ -593,13 +598,12 @@ def _one_run_agents(bctx: BatchContext, configs: list, build: Callable) -> list:
 
 def stacked_agent(bctx: BatchContext, configs: list, twin_q: bool) -> StackedActor:
     """The batch's agent, built member by member as the one-run path builds it."""
-    if bctx.device != "cpu":
+    agents = _one_run_agents(bctx, configs, TwinQSACAgent if twin_q else SACAgent)
+    if bctx.device != "cpu":  # after the agents: building each reseeds every device
         torch.cuda.manual_seed(bctx.seeds[0] + 1)  # the batch's device stream
     if twin_q:
-        return StackedTwinQAgent(_one_run_agents(bctx, configs, TwinQSACAgent), configs[0],
-                                 bctx.device, bctx.cuda_graphs)
-    return StackedSACAgent(_one_run_agents(bctx, configs, SACAgent), configs[0], bctx.device,
-                           bctx.cuda_graphs)
+        return StackedTwinQAgent(agents, configs[0], bctx.device, bctx.cuda_graphs)
+    return StackedSACAgent(agents, configs[0], bctx.device, bctx.cuda_graphs)
 
 
 def _train_stacked(bctx: BatchContext, configs: list, twin_q: bool, guided: bool) -> None:

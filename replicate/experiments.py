@@ -8,7 +8,6 @@ budgets and is meant for a cluster or a GPU machine.
 from __future__ import annotations
 
 import dataclasses
-import json
 import multiprocessing as mp
 import os
 import queue
@@ -23,7 +22,8 @@ from tqdm import tqdm
 from baselines.common.device import worker_devices
 from replicate.errors import HarnessError
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
-                              execute, execute_batch, is_complete, load_run, prepare)
+                              batch_key, execute, execute_batch, is_complete, load_run,
+                              prepare)
 from replicate.profiles import (PAPER_BUDGETS, PAPER_SEEDS_FIG3, PROFILES, GridOutcome,  # noqa: F401
                                 Profile, get_profile, report_dir)
 from replicate.spec import RunSpec
@@ -136,13 +136,6 @@ def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interv
     return failed
 
 
-def batch_key(prepared: PreparedRun) -> str:
-    """Runs with equal keys may share a batch: everything of the resolved spec but the seed."""
-    resolved = {k: v for k, v in prepared.resolved.items()
-                if k not in ("seed", "spec_hash", "demos_path")}
-    return json.dumps(resolved, sort_keys=True, default=str)
-
-
 def plan_batches(missing: list[PreparedRun], batch: int | None
                  ) -> list[PreparedRun | list[PreparedRun]]:
     """The grid's tasks: runs of an algorithm with a batched trainer grouped, at most
@@ -215,10 +208,12 @@ EXECUTORS = ("local", "ray")
 DEFAULT_GPU_BATCH = 64  # members per batch on a GPU when --batch is not given
 
 
-def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str) -> int | None:
+def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
+                  concurrent: int = 1) -> int | None:
     """The batch size a grid trains with: ``batch`` if given (checked), else on a GPU the
-    largest up to ``DEFAULT_GPU_BATCH`` that fits its memory, else None (one run per
-    process). Bad sizes raise a one-line :class:`HarnessError`."""
+    largest up to ``DEFAULT_GPU_BATCH`` such that ``concurrent`` batches at once fit its
+    memory, else None (one run per process). Bad sizes raise a one-line
+    :class:`HarnessError`."""
     from baselines.common.device import resolve_device
     from baselines.registry import batched_trainer
 
@@ -235,14 +230,15 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str) ->
     import torch
 
     free, _ = torch.cuda.mem_get_info()
-    need = max(batch_bytes(p, 1) for p in batchable)
-    fits = max(1, int(0.8 * free // need))
+    need = max(batch_bytes(p, 1) for p in batchable) * max(1, concurrent)
+    fits = int(0.8 * free // need)
     if batch is None:
-        return min(DEFAULT_GPU_BATCH, fits)
+        return max(1, min(DEFAULT_GPU_BATCH, fits))
     if batch > fits:
-        raise HarnessError(f"a batch of {batch} needs about {batch * need / 2**30:.1f} GiB of "
-                           f"GPU memory; {free / 2**30:.1f} GiB are free",
-                           f"pass --batch {fits} or less")
+        raise HarnessError(f"{max(1, concurrent)} batch(es) of {batch} at once need about "
+                           f"{batch * need / 2**30:.1f} GiB of GPU memory; "
+                           f"{free / 2**30:.1f} GiB are free",
+                           f"pass --batch {max(1, fits)} or less, or fewer --workers")
     return batch
 
 
@@ -289,7 +285,12 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
             raise HarnessError("--batch is not supported with --executor ray",
                                "drop --batch, or train locally")
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
-    tasks = plan_batches(missing, resolve_batch(batch, missing, device))
+    try:  # at most this many batches share the GPU at once
+        gpu_slots = worker_devices(device, workers or os.cpu_count() or 1,
+                                   gpu_workers).count("cuda")
+    except ValueError as exc:
+        raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
+    tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots))
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     if env_workers is None:
         env_workers = max(0, (os.cpu_count() or 1) // workers - 1)

@@ -328,6 +328,13 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     recorder.finish()
 
 
+def batch_key(prepared: PreparedRun) -> str:
+    """Runs with equal keys may share a batch: everything of the resolved spec but the seed."""
+    resolved = {k: v for k, v in prepared.resolved.items()
+                if k not in ("seed", "spec_hash", "demos_path")}
+    return json.dumps(resolved, sort_keys=True, default=str)
+
+
 def batch_id(members: list[PreparedRun]) -> str:
     """The address of a batch: its members' run ids, in order."""
     joined = "\n".join(p.run_id for p in members)
@@ -359,11 +366,11 @@ def execute_batch(members: list[PreparedRun], store: Path,
     members = [p for p in members if not is_complete(p.directory(store))]
     if not members:
         return BatchOutcome([], [])
-    algos = {p.spec.algo for p in members}
     trainer = batched_trainer(members[0].spec.algo)
-    if len(algos) != 1 or trainer is None:
-        raise HarnessError(f"a batch needs one algorithm with a batched trainer, got "
-                           f"{sorted(algos)}", "batch only sac, sac-twin-q and drl-eg runs")
+    if len({batch_key(p) for p in members}) != 1 or trainer is None:
+        raise HarnessError("the runs of a batch must differ in their seed alone, and their "
+                           f"algorithm have a batched trainer ({members[0].spec.algo})",
+                           "batch only sac, sac-twin-q and drl-eg runs of one grid cell")
     store.mkdir(parents=True, exist_ok=True)
     ident = batch_id(members)
     batch_dir = store / f".{ident}"
@@ -372,18 +379,33 @@ def execute_batch(members: list[PreparedRun], store: Path,
         for p in members:
             lock_path = store / f".lock-{p.run_id}"
             handle = open(lock_path, "w")
-            locks.append((lock_path, handle))
             try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
             except BlockingIOError:
+                handle.close()  # the lock file is its holder's to remove
                 raise RunLockedError(f"run {p.run_id} is being trained by another process",
                                      "wait for it, or stop that process") from None
+            locks.append((lock_path, handle))
+            if not lock_path.exists() or \
+                    os.stat(lock_path).st_ino != os.fstat(handle.fileno()).st_ino:
+                raise RunLockedError(f"run {p.run_id} was just finished by another process",
+                                     "run the same command again")
+            if is_complete(p.directory(store)):
+                raise RunLockedError(f"run {p.run_id} was just finished by another process",
+                                     "run the same command again")
         batch_dir.mkdir(exist_ok=True)
         batch_sittings = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
         resolved = resolve_device(device, has_gpu_path=True)
-        resolved = resume_device(resolved, _checkpoint_device(batch_dir, earlier),
-                                 follow_checkpoint, what=f"batch {ident} ({batch_dir})")
+        try:
+            resolved = resume_device(resolved, _checkpoint_device(batch_dir, earlier),
+                                     follow_checkpoint, what=f"batch {ident} ({batch_dir})")
+        except CheckpointDeviceError as exc:
+            raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
+                               f"delete {batch_dir}") from None
+        # the sitting is recorded before training: a checkpoint it leaves names its device
+        batch_sittings.write_text(json.dumps(earlier + [{
+            "wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1) + "\n")
         info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
         work_dirs = [partial_directory(p, store) for p in members]
         recorders = []
@@ -434,6 +456,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
                 shutil.rmtree(work, ignore_errors=True)
                 continue
             recorder.finish()
+            (work / CHECKPOINT_FILE).unlink(missing_ok=True)  # an earlier one-run attempt's
             final_dir = p.directory(store)
             if final_dir.exists():
                 shutil.rmtree(final_dir)

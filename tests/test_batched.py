@@ -331,3 +331,43 @@ def test_every_batched_algorithm_trains_a_tiny_batch():
         batched_trainer(algo)(BatchContext(contexts), [config, config])
         assert [p.step for p in points[0]] == [0, 150, 300], algo
         assert curve_signature(points[0]) != curve_signature(points[1]), algo
+
+
+def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
+    members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1), steps=800)]
+    original = StackedSACAgent._gradient_step
+
+    def poisoned(self, batch, noise):
+        losses = original(self, batch, noise)
+        with torch.no_grad():
+            for weight in self.critics.weights:
+                weight[0:2] = float("nan")
+        return losses
+
+    class Interrupted(Exception):
+        pass
+
+    def run(poison: bool, stop_at: int | None) -> dict[int, str]:
+        failures: dict[int, str] = {}
+        seen = [0]
+
+        def on_steps(n: int) -> None:
+            seen[0] += 1
+            if stop_at is not None and seen[0] == stop_at:
+                raise Interrupted
+        contexts = [TrainContext(MOUNTAINCAR, p.spec.seed, 800, 200, 1) for p in members]
+        bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
+                            checkpoint_path=tmp_path / "checkpoint.pt",
+                            on_member_failed=lambda k, why: failures.update({k: why}))
+        StackedSACAgent._gradient_step = poisoned if poison else original
+        try:
+            batched_trainer("sac")(bctx, [p.config for p in members])
+        except Interrupted:
+            pass
+        finally:
+            StackedSACAgent._gradient_step = original
+        return failures
+
+    assert list(run(poison=True, stop_at=450)) == [0]  # failed, then interrupted
+    resumed = run(poison=False, stop_at=None)
+    assert list(resumed) == [0] and "diverged" in resumed[0]

@@ -94,8 +94,10 @@ class GraphedStep:
     """Calls ``body(**inputs)``: eagerly on CPU (or with graphs off), and on CUDA as a graph
     captured after a few eager calls and replayed on copies of the inputs.
 
-    ``body`` must take tensors of fixed shapes, draw no random numbers itself, and return
-    detached tensors; the returned tensors are overwritten by the next call.
+    ``body`` must take tensors of fixed shapes and return detached tensors; the returned
+    tensors are overwritten by the next call. Random numbers it draws itself must come from
+    the default CUDA generator (graph capture advances its offset on every replay); the
+    one-run agents draw theirs outside and pass them in.
     """
 
     def __init__(self, body: StepBody, device: torch.device, use_graph: bool = True):
