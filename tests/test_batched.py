@@ -371,3 +371,12 @@ def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
     assert list(run(poison=True, stop_at=450)) == [0]  # failed, then interrupted
     resumed = run(poison=False, stop_at=None)
     assert list(resumed) == [0] and "diverged" in resumed[0]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_a_batch_trains_on_the_gpu_with_graphs(tmp_path):
+    """Run on a lent GPU machine by benchmarks/gpu_checks.py too (reports/bench/batched_gpu.json)."""
+    members = [prepare(s) for s in _specs(algo="sac-twin-q", steps=600, seeds=(0, 1))]
+    outcome = execute_batch(members, tmp_path, device="cuda")
+    assert not outcome.failed and len(outcome.runs) == 2
+    assert all(r.provenance["batch"]["device"].startswith("cuda") for r in outcome.runs)
