@@ -487,10 +487,11 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
     guided_steps = np.zeros(n, dtype=np.int64)
     steps_since_eval = 0
 
-    def fail(k: int, reason: str) -> None:
+    def fail(k: int, reason: str, steps_left: int) -> None:
         alive[k] = False
         failures[k] = reason
         bctx.on_member_failed(k, reason)
+        bctx.on_steps(steps_left)  # a failed member's steps count as done for the progress
 
     def evaluate_and_record(step: int) -> None:
         returns = evaluate_members(eval_envs, agent.act_deterministic, eval_episodes, alive)
@@ -533,7 +534,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             batch_rngs = resumed["batch_rngs"]
             alive[:] = resumed["alive"]
             for k, reason in resumed["failures"].items():  # failed before the checkpoint
-                fail(k, reason)
+                fail(k, reason, total_steps)
             guided_steps[:] = resumed["guided_steps"]
             steps_since_eval = resumed["steps_since_eval"]
             obs = resumed["obs"]
@@ -570,7 +571,8 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
                     q_loss = losses["q_loss"].cpu().numpy()
                     for k in np.flatnonzero(alive & ~np.isfinite(q_loss)):
                         fail(k, f"diverged at step {step}: losses "
-                                f"{ {name: float(v[k]) for name, v in losses.items()} }")
+                                f"{ {name: float(v[k]) for name, v in losses.items()} }",
+                             total_steps - step + 1)
 
             if step % eval_interval == 0 or step == total_steps:
                 evaluate_and_record(step)
