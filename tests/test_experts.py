@@ -38,7 +38,8 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
                for name, p in policy.policy.state_dict().items() if p.is_floating_point())
 
     demos = make_demos(ENV, n_pairs=50, seed=0)
-    assert demos.metadata["expert_episodes"] >= 10 and demos.metadata["expert_algo"] == "sac"
+    assert demos.metadata["expert_episodes"] >= 10
+    assert demos.metadata["expert_algo"] == experts.expert_algo_for(ENV)
     first_action = policy(demos.observations[0])
     assert np.allclose(first_action, demos.actions[0], atol=1e-6)
     loaded = load_demos(save_demos(expert_dir / "demos.npz", demos), ENV)
@@ -63,15 +64,18 @@ def test_missing_expert_is_a_clear_error(expert_dir):
 
 def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     root = expert_dir / "work"
-    path = experts.train_expert(ENV, steps=200, root=root, eval_interval=100, algo="sac-twin-q")
-    policy = experts.ExpertPolicy(ENV, path)
+    env_id = "Walker2d-v5"  # an env whose default expert trainer is the paper's SAC
+    assert experts.expert_algo_for(env_id) == "sac"
+    path = experts.train_expert(env_id, steps=200, root=root, eval_interval=100,
+                                algo="sac-twin-q")
+    policy = experts.ExpertPolicy(env_id, path)
     assert policy.metadata["algo"] == "sac-twin-q"
-    assert "--algo sac-twin-q" in policy.metadata["command"]  # not Hopper's default
+    assert "--algo sac-twin-q" in policy.metadata["command"]  # not the env's default
     assert policy.metadata["command"].endswith("--device cpu")  # where it trained
     assert policy.metadata["device"] == "cpu"
     assert "initial_alpha" in policy.metadata["hyperparameters"]
-    assert np.all(np.isfinite(policy(np.zeros(11))))
+    assert np.all(np.isfinite(policy(np.zeros(17))))
     with pytest.raises(HarnessError, match="expert run of sac-twin-q"):
-        experts.train_expert(ENV, steps=200, root=root, algo="sac")
+        experts.train_expert(env_id, steps=200, root=root, algo="sac")
     with pytest.raises(HarnessError, match="not ppo"):
-        experts.train_expert(ENV, steps=200, root=root, algo="ppo")
+        experts.train_expert(env_id, steps=200, root=root, algo="ppo")
