@@ -267,7 +267,7 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
         for algo in ("sac", "drl-eg"):
             for members in sizes:
                 try:
-                    result = batched_rate(algo, env_id, members, steps, device, env_workers)
+                    result = batched_rate(algo, env_id, members, steps, "cuda", env_workers)
                 except Exception:
                     write("gpu_errors", {f"{algo} {env_id} N={members}": traceback.format_exc()})
                     continue
