@@ -107,7 +107,7 @@ class StackedActor:
                   ) -> dict[str, torch.Tensor]:
         if noise is None:  # on the GPU, inside the graph
             noise = torch.randn((self.members, 1, self.act_dim), device=self.device)
-        action, _ = self.policy.sample(obs[:, None, :], noise)
+        action, _ = self.policy.sample(obs[:, None, :], noise=noise)
         return {"action": action[:, 0].detach()}
 
     @torch.no_grad()
@@ -126,7 +126,7 @@ class StackedActor:
         obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(self.device)
         return self.policy.deterministic(obs_t[:, None, :])[:, 0].cpu().numpy()
 
-    def _setup_updates(self, members: int, batch_size: int, cuda_graphs: bool) -> None:
+    def _setup_updates(self, batch_size: int, cuda_graphs: bool) -> None:
         self.batch_size = batch_size
         self.buffer: StackedReplay | None = None
         self._update_graph = GraphedStep(self._sample_and_update, self.device, cuda_graphs)
@@ -195,7 +195,7 @@ class StackedSACAgent(StackedActor):
         self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
         self.generators = [a.noise for a in agents]
         self._setup_acting(cuda_graphs)
-        self._setup_updates(self.members, config.batch_size, cuda_graphs)
+        self._setup_updates(config.batch_size, cuda_graphs)
 
     MODULES = ("critics", "v", "v_target", "policy", "q_optimizer", "v_optimizer",
                "policy_optimizer")
@@ -219,7 +219,7 @@ class StackedSACAgent(StackedActor):
         q_losses.sum().backward()
         self.q_optimizer.step()
 
-        new_actions, log_prob = self.policy.sample(obs, noise)
+        new_actions, log_prob = self.policy.sample(obs, noise=noise)
         with frozen(self.critics):
             q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
         v_losses = 0.5 * (self.v(obs).squeeze(-1) - v_target(q_new, log_prob).detach()
@@ -261,7 +261,7 @@ class StackedTwinQAgent(StackedActor):
         self.alpha_optimizer = make_adam([self.log_alpha], lr, self.device, True)
         self.generators = [a.noise for a in agents]
         self._setup_acting(cuda_graphs)
-        self._setup_updates(self.members, config.batch_size, cuda_graphs)
+        self._setup_updates(config.batch_size, cuda_graphs)
 
     MODULES = ("critics", "critics_target", "policy", "critic_optimizer", "policy_optimizer",
                "alpha_optimizer")
@@ -295,7 +295,8 @@ class StackedTwinQAgent(StackedActor):
         alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
         with torch.no_grad():
-            next_actions, next_log_prob = self.policy.sample(batch.next_observations, next_noise)
+            next_actions, next_log_prob = self.policy.sample(batch.next_observations,
+                                                             noise=next_noise)
             next_q = critic_pairs(self.critics_target, batch.next_observations,
                                   next_actions).min(dim=1).values
             y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * (
@@ -306,7 +307,7 @@ class StackedTwinQAgent(StackedActor):
         q_losses.sum().backward()
         self.critic_optimizer.step()
 
-        new_actions, log_prob = self.policy.sample(obs, new_noise)
+        new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
         with frozen(self.critics):
             q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
         policy_losses = (alpha * log_prob - q_new).mean(-1)
@@ -608,21 +609,22 @@ def stacked_agent(bctx: BatchContext, configs: list, twin_q: bool) -> StackedAct
     return StackedSACAgent(agents, configs[0], bctx.device, bctx.cuda_graphs)
 
 
-def _train_stacked(bctx: BatchContext, configs: list, twin_q: bool, guided: bool) -> None:
-    agent = stacked_agent(bctx, configs, twin_q)
+def stacked_explorer(bctx: BatchContext, agent: StackedActor, configs: list,
+                     guided: bool) -> StackedExplorer:
+    """SAC's explorer for the batch, or DRL-EG's over the members' shared demonstrations."""
     if not guided:
-        return run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
+        return StackedExplorer(agent)
     demos = bctx.members[0].demos
     if demos is None:
         raise ValueError("DRL-EG needs demonstrations")
     low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
     high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
-    explorer = StackedGuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
-    return run_stacked_off_policy(bctx, agent, explorer)
+    return StackedGuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
 
 
-# What may differ between the members of a batch: the rest of the config is shared.
-MEMBER_SETTINGS = ("guide_threshold", "guide_noise_std")
+def _train_stacked(bctx: BatchContext, configs: list, twin_q: bool, guided: bool) -> None:
+    agent = stacked_agent(bctx, configs, twin_q)
+    run_stacked_off_policy(bctx, agent, stacked_explorer(bctx, agent, configs, guided))
 
 
 @register_batched("sac")
@@ -646,12 +648,6 @@ def train_drl_eg_twin_q(bctx: BatchContext, configs: list[DRLEGTwinQConfig]) -> 
     _train_stacked(bctx, configs, twin_q=True, guided=True)
 
 
-def batch_memory_bytes(obs_dim: int, act_dim: int, capacity: int, members: int) -> int:
-    """Device memory the replay of ``members`` needs (networks and activations are small
-    beside it at 1M transitions)."""
-    return members * StackedReplay.bytes_per_member(obs_dim, act_dim, capacity)
-
-
-__all__ = ["BatchContext", "MEMBER_SETTINGS", "StackedSACAgent", "StackedTwinQAgent",
-           "StackedExplorer", "StackedGuidedExplorer", "batch_memory_bytes",
+__all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent",
+           "StackedExplorer", "StackedGuidedExplorer", "stacked_explorer",
            "evaluate_members", "run_stacked_off_policy", "stacked_agent"]

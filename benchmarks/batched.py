@@ -35,8 +35,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.batched import BatchContext, run_stacked_off_policy, stacked_agent  # noqa: E402
-from baselines.batched import StackedExplorer, StackedGuidedExplorer  # noqa: E402
+from baselines.batched import (BatchContext, run_stacked_off_policy, stacked_agent,  # noqa: E402
+                               stacked_explorer)
 from baselines.common.context import TrainContext  # noqa: E402
 from baselines.common.stacked import StackedReplay  # noqa: E402
 from baselines.registry import get_algorithm  # noqa: E402
@@ -90,12 +90,7 @@ def batched_rate(algo: str, env_id: str, members: int, steps: int, device: str,
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
     agent = stacked_agent(bctx, configs, twin_q=False)
-    if algorithm.needs_demos:
-        low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
-        high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
-        explorer = StackedGuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
-    else:
-        explorer = StackedExplorer(agent)
+    explorer = stacked_explorer(bctx, agent, configs, guided=algorithm.needs_demos)
     started = time.perf_counter()
     run_stacked_off_policy(bctx, agent, explorer)
     ended = time.perf_counter()

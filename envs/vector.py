@@ -206,14 +206,7 @@ class EnvBatch:
 
     def snapshot(self) -> list[dict[str, Any]]:
         """Per env: its random state and how its current episode began (for a checkpoint)."""
-        return self._call_noargs("snapshot")
-
-    def _call_noargs(self, method: str) -> Any:
-        if self._local is not None:
-            return getattr(self._local, method)()
-        for conn in self._conns:
-            conn.send((method, []))
-        return [item for conn in self._conns for item in self._receive(conn)]
+        return self._call("snapshot", [])
 
     def restore(self, states: list[dict[str, Any]]) -> list[np.ndarray | None]:
         """Put every env back where ``snapshot`` found it; the observation of each episode

@@ -245,12 +245,13 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
 def batch_bytes(prepared: PreparedRun, members: int) -> int:
     """Device memory of ``members`` runs like ``prepared`` in one batch: their replay, plus
     their networks, optimiser state and activations (a generous 64 MiB each)."""
-    from baselines.batched import batch_memory_bytes
+    from baselines.common.stacked import StackedReplay
     from envs import env_spec
 
     env = env_spec(prepared.spec.env_id)
     capacity = min(prepared.config.buffer_size, prepared.spec.total_steps)
-    return batch_memory_bytes(env.obs_dim, env.act_dim, capacity, members) + members * 2**26
+    replay = StackedReplay.bytes_per_member(env.obs_dim, env.act_dim, capacity)
+    return members * (replay + 2**26)
 
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,

@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from baselines.common.buffer import Batch
-from baselines.common.networks import LOG_STD_MIN, LOG_STD_MAX, squashed_sample
+from baselines.common.networks import TanhGaussianPolicy
 
 
 class StackedMLP(nn.Module):
@@ -55,26 +55,15 @@ class StackedMLP(nn.Module):
         return [(w[k].T.detach(), b[k, 0].detach()) for w, b in zip(self.weights, self.biases)]
 
 
-class StackedPolicy(nn.Module):
-    """Tanh-squashed Gaussian policies of N members (``TanhGaussianPolicy`` batched)."""
+class StackedPolicy(TanhGaussianPolicy):
+    """Tanh-squashed Gaussian policies of N members: ``TanhGaussianPolicy`` on a stacked
+    trunk, so forward, the deterministic action and ``sample(obs, noise=...)`` are its own."""
 
     def __init__(self, trunk: StackedMLP, action_scale: torch.Tensor, action_bias: torch.Tensor):
-        super().__init__()
+        nn.Module.__init__(self)  # the one-run trunk is not built: the stacked one replaces it
         self.trunk = trunk
         self.register_buffer("action_scale", action_scale.detach().clone())
         self.register_buffer("action_bias", action_bias.detach().clone())
-
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mean, log_std = self.trunk(obs).chunk(2, dim=-1)
-        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
-
-    def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
-        mean, _ = self(obs)
-        return self.action_bias + self.action_scale * torch.tanh(mean)
-
-    def sample(self, obs: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mean, log_std = self(obs)
-        return squashed_sample(mean, log_std, noise, self.action_scale, self.action_bias)
 
 
 def pair_critics(q1: Sequence[nn.Sequential], q2: Sequence[nn.Sequential]) -> StackedMLP:
