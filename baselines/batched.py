@@ -487,6 +487,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
     failures: dict[int, str] = {}
     guided_steps = np.zeros(n, dtype=np.int64)
     steps_since_eval = 0
+    best_returns = np.full(n, -np.inf)  # for members that keep their best policy (experts)
 
     def fail(k: int, reason: str, steps_left: int) -> None:
         alive[k] = False
@@ -502,6 +503,11 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             point = EvalPoint(step, tuple(returns[k]), float(fraction), gate)
             curves[k].append(point)
             bctx.members[k].on_eval(point)
+            keep = bctx.members[k].best_policy_path
+            if keep is not None and point.mean_return > best_returns[k]:
+                best_returns[k] = point.mean_return
+                save_checkpoint(keep, {"policy": agent.policy.member_policy(k).state_dict(),
+                                       "step": step, "mean_return": point.mean_return})
 
     def save(step: int) -> None:
         save_checkpoint(bctx.checkpoint_path, {
@@ -550,6 +556,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
                 for point in resumed["curves"][k]:
                     curves[k].append(point)
                     bctx.members[k].on_eval(point)
+                    best_returns[k] = max(best_returns[k], point.mean_return)
             bctx.on_steps(resumed["step"] * int(alive.sum()))
         last_checkpoint = start - 1
         idle_action = np.zeros(agent.act_dim, dtype=np.float32)

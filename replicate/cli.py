@@ -11,6 +11,21 @@ from pathlib import Path
 DEFAULT_STORE = Path(os.environ.get("REPLICATE_STORE", "runs"))
 
 
+def _seed_list(text: str) -> list[int]:
+    """``1-8`` or ``1,4,7`` (or a mix: ``1-3,9``) as a list of seeds."""
+    seeds: list[int] = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            seeds.extend(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a seed list: '{text}' (e.g. 1-8 or 1,4,7)"
+                                         ) from None
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in '{text}'")
+    return seeds
+
+
 def _parse_overrides(pairs: list[str]) -> dict:
     """``KEY=VALUE`` strings to a dict; values are Python literals where they parse as one."""
     from replicate.errors import HarnessError
@@ -128,6 +143,11 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_device_argument(expert)
     expert.add_argument("--export-only", action="store_true",
                         help="do not train; export the best policy found so far")
+    expert.add_argument("--seeds", type=_seed_list, default=None,
+                        help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and "
+                             "keep the best member; not resumed (meant for a lent GPU)")
+    expert.add_argument("--minutes", type=float, default=None,
+                        help="with --seeds: stop after this many minutes of training")
 
     fig3 = sub.add_parser(
         "fig3", help="train what Fig. 3 needs and write its HTML report",
@@ -284,10 +304,23 @@ def _cmd_demos(args: argparse.Namespace) -> int:
 def _cmd_expert(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from replicate.experts import export_expert, train_expert
+    from replicate.errors import HarnessError
+    from replicate.experts import export_expert, train_expert, train_expert_batch
 
+    if args.minutes is not None and (args.seeds is None or args.minutes <= 0):
+        raise HarnessError("--minutes limits a seed batch: it needs --seeds and a positive "
+                           f"value, got {args.minutes}", "pass --seeds 1-8 --minutes 8")
     if args.export_only:
         path = export_expert(args.env, args.root)
+    elif args.seeds is not None:
+        total = args.steps * len(args.seeds)
+        with tqdm(total=total, unit="step", desc=f"expert batch {args.env}",
+                  dynamic_ncols=True, mininterval=2.0) as bar:
+            path = train_expert_batch(args.env, args.steps, args.seeds, args.root,
+                                      eval_interval=args.eval_interval, on_steps=bar.update,
+                                      algo=args.algo, device=args.device,
+                                      time_limit_s=None if args.minutes is None
+                                      else 60 * args.minutes)
     else:
         with tqdm(total=args.steps, unit="step", desc=f"expert {args.env}",
                   dynamic_ncols=True, mininterval=2.0) as bar:

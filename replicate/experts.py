@@ -146,6 +146,104 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     return export_expert(env_id, root)
 
 
+class _TimeUp(Exception):
+    """Raised from the progress callback when a time-limited expert batch is out of time."""
+
+
+def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = Path("experts"),
+                       eval_interval: int = 10_000, eval_episodes: int = 5,
+                       on_steps: Callable[[int], None] = lambda n: None,
+                       algo: str | None = None, device: str = "auto",
+                       env_workers: int | None = None,
+                       time_limit_s: float | None = None) -> Path:
+    """Train one expert run per seed as one seed batch, keep the member with the best
+    evaluation, export it and return the path.
+
+    For a GPU machine lent for minutes: several seeds cost little more time than one, and
+    the best of them is kept (as the paper kept "the best trained" agent). With
+    ``time_limit_s`` the batch stops at the first step after that many seconds; every
+    member's best policy so far is on disk at each evaluation, so stopping loses nothing
+    kept. A batch is not resumed: it writes ``<root>/<env>/batch/seed-<s>/`` afresh.
+    """
+    from baselines.batched import BatchContext
+    from baselines.registry import batched_trainer
+
+    env_spec(env_id)
+    algo = algo or expert_algo_for(env_id)
+    if algo not in EXPERT_ALGOS:
+        raise HarnessError(f"experts are trained by {' or '.join(EXPERT_ALGOS)}, not {algo}",
+                           f"pass --algo {EXPERT_ALGOS[0]} or --algo {EXPERT_ALGOS[1]}")
+    if env_id in EXPERT_SOURCE:
+        raise HarnessError(f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
+                           f"train that one: --env {EXPERT_SOURCE[env_id]}")
+    if steps <= 0:
+        raise HarnessError(f"step count must be positive, got {steps}", "pass --steps N, N > 0")
+    if len(set(seeds)) != len(seeds) or len(seeds) < 2:
+        raise HarnessError(f"an expert batch needs two or more distinct seeds, got {seeds}",
+                           "pass --seeds 1-8 (or --seed N for one run)")
+    work = work_dir_for(env_id, root)
+    if (work / "checkpoint.pt").is_file():
+        raise HarnessError(f"{work} holds a one-run expert in training",
+                           f"finish or remove it, or pass another --root")
+    check_device(device)
+    resolved_device = resolve_device(device, True)
+    workers = env_workers if env_workers is not None else (
+        0 if resolved_device == "cpu" else len(seeds))
+    started = time.time()
+    members_dir = work / "batch"
+    curves: dict[int, list[EvalPoint]] = {seed: [] for seed in seeds}
+
+    def progress(seed: int, point: EvalPoint) -> None:
+        curve = curves[seed]
+        curve.append(point)
+        best = max(curve, key=lambda p: p.mean_return)
+        (members_dir / f"seed-{seed}" / "progress.json").write_text(json.dumps({
+            "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
+            "torch_threads": 1, "device": describe_device(resolved_device),
+            "steps_done": point.step, "best_step": best.step,
+            "best_mean_return": best.mean_return,
+            "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
+            "batch_seeds": list(seeds), "time_limit_s": time_limit_s,
+            "wall_time_s_before_this_sitting": 0.0,
+            "wall_time_s_this_sitting": time.time() - started}, indent=1))
+
+    def count(n: int) -> None:
+        on_steps(n)
+        if time_limit_s is not None and time.time() - started > time_limit_s:
+            raise _TimeUp
+
+    contexts = []
+    for seed in seeds:
+        (members_dir / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
+        (members_dir / f"seed-{seed}" / "best_policy.pt").unlink(missing_ok=True)
+        contexts.append(TrainContext(
+            env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
+            eval_episodes=eval_episodes, on_eval=lambda p, s=seed: progress(s, p),
+            best_policy_path=members_dir / f"seed-{seed}" / "best_policy.pt",
+            device=resolved_device))
+    algorithm = get_algorithm(algo)
+    config = algorithm.make_config({"torch_threads": 1})
+    bctx = BatchContext(contexts, device=resolved_device, env_workers=workers, on_steps=count)
+    try:
+        batched_trainer(algo)(bctx, [config] * len(seeds))
+    except _TimeUp:
+        pass
+    except torch.OutOfMemoryError:
+        raise HarnessError(f"the {env_id} expert batch ran out of GPU memory",
+                           "pass fewer --seeds, or --device cpu") from None
+    trained = [s for s in seeds if (members_dir / f"seed-{s}" / "best_policy.pt").is_file()]
+    if not trained:
+        raise HarnessError(f"no member of the {env_id} expert batch finished an evaluation",
+                           "give it more time (--minutes)")
+    chosen = max(trained, key=lambda s: max(p.mean_return for p in curves[s]))
+    chosen_dir = members_dir / f"seed-{chosen}"
+    summary = json.loads((chosen_dir / "progress.json").read_text())
+    summary["batch_best"] = {str(s): max(p.mean_return for p in curves[s]) for s in trained}
+    (work / "progress.json").write_text(json.dumps(summary, indent=1))
+    (work / "best_policy.pt").write_bytes((chosen_dir / "best_policy.pt").read_bytes())
+    return export_expert(env_id, root)
+
+
 def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
     """Write the best policy so far, with its provenance, to the package's expert file."""
     work = work_dir_for(env_id, root)
@@ -163,11 +261,18 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
         "hyperparameters": {k: (list(v) if isinstance(v, tuple) else v)
                             for k, v in dataclasses.asdict(config).items()},
         "budget_steps": progress["total_steps"], "steps_trained": progress["steps_done"],
+        # a batch keeps its best member; every member's best evaluation, by seed
+        **({"batch_best_eval_return": progress["batch_best"]} if "batch_best" in progress
+           else {}),
         "best_step": int(best["step"]), "best_eval_return": float(best["mean_return"]),
         "wall_time_s": round(progress["wall_time_s_before_this_sitting"]
                              + progress["wall_time_s_this_sitting"], 1),
         "curve": progress["curve"],
         "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}"
+                   + (f" --seeds {','.join(map(str, progress['batch_seeds']))}"
+                      if "batch_seeds" in progress else "")
+                   + (f" --minutes {progress['time_limit_s'] / 60:g}"
+                      if progress.get("time_limit_s") else "")
                    + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}")
                    + ("" if progress.get("torch_threads", 1) == 1
                       else f" --threads {progress['torch_threads']}"),

@@ -65,6 +65,22 @@ class StackedPolicy(TanhGaussianPolicy):
         self.register_buffer("action_scale", action_scale.detach().clone())
         self.register_buffer("action_bias", action_bias.detach().clone())
 
+    def member_policy(self, k: int) -> TanhGaussianPolicy:
+        """Member ``k`` as a one-run policy on the CPU (what an expert file holds)."""
+        layers = self.trunk.member_linear(k)
+        obs_dim, act_dim = layers[0][0].shape[1], layers[-1][0].shape[0] // 2
+        low = (self.action_bias - self.action_scale).cpu()
+        high = (self.action_bias + self.action_scale).cpu()
+        with torch.random.fork_rng(devices=[]):  # its throwaway initial weights draw no
+            policy = TanhGaussianPolicy(obs_dim, act_dim, low, high,  # batch random numbers
+                                        [w.shape[0] for w, _ in layers[:-1]])
+        linears = [m for m in policy.trunk if isinstance(m, nn.Linear)]
+        with torch.no_grad():
+            for linear, (weight, bias) in zip(linears, layers, strict=True):
+                linear.weight.copy_(weight)
+                linear.bias.copy_(bias)
+        return policy
+
 
 def pair_critics(q1: Sequence[nn.Sequential], q2: Sequence[nn.Sequential]) -> StackedMLP:
     """Two critics per member as one stack of 2N, member-major: (m0 Q1, m0 Q2, m1 Q1, ...)."""
