@@ -101,6 +101,23 @@ def test_members_start_from_the_one_run_weights_of_their_seed():
             assert torch.equal(weight, layer.weight)
 
 
+def test_a_member_comes_out_of_the_stack_as_its_one_run_policy():
+    config = SACConfig(hidden_sizes=(16, 16))
+    agents = _agents(SACAgent, config, seeds=(4, 9))
+    stacked = StackedSACAgent(agents, config, "cpu")
+    with torch.no_grad():  # train the stack a little, so that members differ from their start
+        for weight in stacked.policy.trunk.weights:
+            weight.add_(0.1 * torch.randn_like(weight))
+    obs = np.random.default_rng(0).normal(size=(2, OBS)).astype(np.float32)
+    state = torch.get_rng_state()
+    for k in range(2):
+        alone = stacked.policy.member_policy(k)
+        assert set(alone.state_dict()) == set(agents[k].policy.state_dict())
+        acted = alone.deterministic(torch.from_numpy(obs[k:k + 1]))[0].detach().numpy()
+        np.testing.assert_allclose(acted, stacked.act_deterministic(obs)[k], atol=1e-6)
+    assert torch.equal(torch.get_rng_state(), state)  # taking a member out draws nothing
+
+
 def test_batched_guider_decides_and_acts_as_the_one_run_guider():
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     low, high = np.array([-1.0]), np.array([1.0])

@@ -64,7 +64,7 @@ def test_missing_expert_is_a_clear_error(expert_dir):
 
 def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     root = expert_dir / "work"
-    env_id = "Walker2d-v5"  # an env whose default expert trainer is the paper's SAC
+    env_id = "dm_control/cartpole-swingup-v0"  # its default expert trainer is the paper's SAC
     assert experts.expert_algo_for(env_id) == "sac"
     path = experts.train_expert(env_id, steps=200, root=root, eval_interval=100,
                                 algo="sac-twin-q")
@@ -74,8 +74,38 @@ def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     assert policy.metadata["command"].endswith("--device cpu")  # where it trained
     assert policy.metadata["device"] == "cpu"
     assert "initial_alpha" in policy.metadata["hyperparameters"]
-    assert np.all(np.isfinite(policy(np.zeros(17))))
+    assert np.all(np.isfinite(policy(np.zeros(policy.policy.trunk[0].in_features))))
     with pytest.raises(HarnessError, match="expert run of sac-twin-q"):
         experts.train_expert(env_id, steps=200, root=root, algo="sac")
     with pytest.raises(HarnessError, match="not ppo"):
         experts.train_expert(env_id, steps=200, root=root, algo="ppo")
+
+
+def test_a_seed_batch_exports_its_best_member(expert_dir):
+    root = expert_dir / "work"
+    path = experts.train_expert_batch(ENV, steps=300, seeds=[1, 2], root=root,
+                                      eval_interval=100, device="cpu")
+    meta = experts.ExpertPolicy(ENV, path).metadata
+    best = meta["batch_best_eval_return"]
+    assert set(best) == {"1", "2"}
+    assert meta["seed"] == int(max(best, key=best.get))
+    assert meta["best_eval_return"] == pytest.approx(max(best.values()))
+    assert meta["steps_trained"] == 300 and "--seeds 1,2" in meta["command"]
+    member = torch.load(root / ENV / "batch" / f"seed-{meta['seed']}" / "best_policy.pt",
+                        weights_only=True)
+    exported = torch.load(path, weights_only=True)["policy"]
+    assert all(torch.equal(exported[name], t.half()) for name, t in member["policy"].items()
+               if t.is_floating_point())
+    for seed in (1, 2):  # every member kept its own curve and best policy
+        progress = json.loads((root / ENV / "batch" / f"seed-{seed}" / "progress.json").read_text())
+        assert [step for step, _ in progress["curve"]] == [0, 100, 200, 300]
+        assert progress["best_mean_return"] == pytest.approx(best[str(seed)])
+
+
+def test_a_time_limited_seed_batch_stops_and_keeps_what_it_evaluated(expert_dir):
+    path = experts.train_expert_batch(ENV, steps=10_000, seeds=[1, 2], root=expert_dir / "w",
+                                      eval_interval=100, device="cpu", time_limit_s=0)
+    meta = experts.ExpertPolicy(ENV, path).metadata
+    assert meta["steps_trained"] == 0 and meta["best_step"] == 0  # stopped at its first step
+    with pytest.raises(HarnessError, match="two or more distinct seeds"):
+        experts.train_expert_batch(ENV, steps=100, seeds=[1, 1], root=expert_dir / "w")
