@@ -19,6 +19,7 @@ import hashlib
 import io
 import json
 import math
+import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,18 +32,50 @@ from replicate.errors import HarnessError
 from replicate.experiments import (GridOutcome, Profile, algorithm_overrides,
                                    drl_eg_env_defaults, get_profile, report_dir, run_grid,
                                    stored_runs)
+from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
 from replicate.stats import bootstrap_mean
 
 ALWAYS = 1e6  # a threshold no distance reaches: every state is guided while the gate is open
-THRESHOLDS: dict[str, list[float]] = {
+THRESHOLDS: dict[str, list[float]] = {  # MountainCar's grid, absolute values
     "smoke": [0.0, 0.05, ALWAYS],
     "quick": [0.0, 0.01, 0.05, 0.2, ALWAYS],
+    "reduced": [0.0, 0.01, 0.05, 0.2, ALWAYS],
     "paper": [0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, ALWAYS],
 }
-SIGMAS: dict[str, list[float]] = {"smoke": [0.1], "quick": [0.1], "paper": [0.05, 0.1, 0.3]}
+SIGMAS: dict[str, list[float]] = {"smoke": [0.1], "quick": [0.1], "reduced": [0.1],
+                                  "paper": [0.05, 0.1, 0.3]}
 ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome (claim 1)
+# On MuJoCo T2 is swept in multiples of the env's default, the median spacing of its
+# demonstration states (which admits about 0.5% of an untrained Ant's states), plus always,
+# on fewer seeds than Fig. 3: 3 seeds x 5 points x 2 envs is already 6M env steps at 200k.
+MUJOCO_ABLATION_ENVS = ("Ant-v5", "Walker2d-v5")
+SPACING_MULTIPLES = (1, 4, 16, 64)
+MUJOCO_ABLATION_SEEDS = 3
+
+
+def threshold_spacing(env_id: str) -> float | None:
+    """The unit of the env's T2 grid: its median demonstration-state spacing (MuJoCo), or
+    None where T2 is swept in absolute values (MountainCar)."""
+    if env_id not in MUJOCO_ABLATION_ENVS:
+        return None
+    return drl_eg_env_defaults(env_id)["guide_threshold"]
+
+
+def default_thresholds(profile: str, env_id: str) -> list[float]:
+    spacing = threshold_spacing(env_id)
+    if spacing is None:
+        return list(THRESHOLDS[profile])
+    return [m * spacing for m in SPACING_MULTIPLES] + [ALWAYS]
+
+
+def ablation_report_name(env_id: str) -> str:
+    """``ablate-threshold`` for MountainCar (the first sweep), ``ablate-threshold-<env>``
+    for the others."""
+    if env_id == ABLATION_ENV:
+        return "ablate-threshold"
+    return "ablate-threshold-" + env_id.split("/")[-1].split("-v")[0].lower()
 REPORT_SEED = 20_260_102
 
 
@@ -55,10 +88,14 @@ class Cell:
     runs: list[Run]
 
 
-def threshold_label(threshold: float) -> str:
+def threshold_label(threshold: float, spacing: float | None = None) -> str:
     if threshold == 0:
         return "0 (off)"
-    return "always" if threshold >= ALWAYS else f"{threshold:g}"
+    if threshold >= ALWAYS:
+        return "always"
+    if spacing:
+        return f"{threshold / spacing:.3g}x spacing ({threshold:.3g})"
+    return f"{threshold:g}"
 
 
 def ablation_specs(profile: Profile, env_id: str, threshold: float, sigma: float,
@@ -100,17 +137,18 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     if env_id not in chosen.steps:
         raise HarnessError(f"profile '{profile}' has no budget for {env_id}",
                            f"pick one of {sorted(chosen.steps)}")
-    n_seeds = chosen.seeds if seeds is None else seeds
+    default_seeds = MUJOCO_ABLATION_SEEDS if env_id in MUJOCO_ABLATION_ENVS else chosen.seeds
+    n_seeds = default_seeds if seeds is None else seeds
     if n_seeds <= 0:
         raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 3")
-    grid_t2 = sorted(thresholds if thresholds is not None else THRESHOLDS[profile])
+    grid_t2 = sorted(thresholds if thresholds is not None else default_thresholds(profile, env_id))
     grid_sigma = sorted(sigmas if sigmas is not None else SIGMAS[profile])
     if any(t < 0 for t in grid_t2) or any(s < 0 for s in grid_sigma):
         raise HarnessError("thresholds and sigmas must be >= 0", "pass values like 0 0.05 0.2")
     store = Path(store)
     store.mkdir(parents=True, exist_ok=True)
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
-    out_dir = Path(out_dir or report_dir(profile, "ablate-threshold"))
+    out_dir = Path(out_dir or report_dir(profile, ablation_report_name(env_id)))
 
     for threshold in grid_t2:  # input errors (demonstrations, values) surface before training
         for sigma in grid_sigma:
@@ -226,6 +264,52 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
     return buffer.getvalue()
 
 
+def _mean_curve(runs: list[Run], column: str) -> tuple[np.ndarray, np.ndarray]:
+    """Steps and the mean of ``column`` over ``runs`` at the steps every run reached."""
+    length = min(len(r.curve) for r in runs)
+    steps = runs[0].curve["step"].to_numpy(float)[:length]
+    values = np.stack([r.curve[column].to_numpy(float)[:length] for r in runs])
+    if column != "guided_fraction":
+        return steps, values.mean(axis=0)
+    with warnings.catch_warnings():  # the first point has no fraction in any run: NaN stays
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return steps, np.nanmean(values, axis=0)
+
+
+def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None) -> bytes:
+    """Return and guided fraction of training steps against env steps, one line per T2
+    (the first sigma of the grid), beside SAC's return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    sns.set_theme(style="whitegrid", context="notebook")
+    first_sigma = min((c.sigma for c in cells), default=0.0)
+    shown = [c for c in cells if c.sigma == first_sigma and c.runs]
+    colors = sns.color_palette("viridis", max(len(shown), 1))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.8))
+    for color, cell in zip(colors, shown):
+        label = threshold_label(cell.threshold, spacing)
+        left.plot(*_mean_curve(cell.runs, "return_mean"), color=color, label=label)
+        right.plot(*_mean_curve(cell.runs, "guided_fraction"), color=color, label=label)
+    if sac_runs:
+        left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
+                  label="SAC")
+    left.set_xlabel("env steps")
+    left.set_ylabel("evaluation return (mean over seeds)")
+    right.set_xlabel("env steps")
+    right.set_ylabel("guided share of training steps")
+    right.set_ylim(-0.02, 1.02)
+    left.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
 def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
                           env_id: str, study_name: str, storage: str,
                           failed: list[tuple[str, str]], out_dir: Path) -> Path:
@@ -241,7 +325,9 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
         return {"mean": float(est.value[0]), "low": float(est.low[0]),
                 "high": float(est.high[0]), "n": len(values)}
 
-    rows = [{"threshold": c.threshold, "sigma": c.sigma, "label": threshold_label(c.threshold),
+    spacing = threshold_spacing(env_id)
+    rows = [{"threshold": c.threshold, "sigma": c.sigma,
+             "label": threshold_label(c.threshold, spacing),
              "final": estimate([r.final_return for r in c.runs]),
              "auc": estimate([area_under_curve(r) for r in c.runs]),
              "runs": [r.path.name for r in c.runs]} for c in cells]
@@ -253,9 +339,12 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
         "profile": profile, "env_id": env_id, "rows": rows,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "figure_png_b64": base64.b64encode(_figure(rows, sac_final, sac_auc)).decode(),
+        "curves_png_b64": base64.b64encode(_curves_figure(cells, sac_runs, spacing)).decode(),
+        "spacing": spacing,
         "zero_check": zero_threshold_equals_sac(cells, sac_runs), "sac_final": sac_final,
         "steps": profile.steps[env_id], "study_name": study_name,
-        "storage": storage.split("///")[-1] if storage.startswith("sqlite") else "(database URL)",
+        "storage": (portable_path(storage.split("///")[-1]) if storage.startswith("sqlite")
+                    else "(database URL)"),
         "failed": failed, "always": ALWAYS, "sac_runs": [r.path.name for r in sac_runs],
         "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}
                             | {provenance.git_revision()}),
@@ -266,7 +355,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
     html = environment.get_template("ablation.html").render(**context)
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
-    summary = {"profile": profile.name, "env_id": env_id, "rows": rows,
+    summary = {"profile": profile.name, "env_id": env_id, "spacing": spacing, "rows": rows,
                "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
                "failed": [{"run_id": i, "reason": why} for i, why in failed]}
     _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
@@ -299,7 +388,7 @@ def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"
         return None
     sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store), [], None)
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
-    out_dir = Path(out_dir or report_dir(profile, "ablate-threshold"))
+    out_dir = Path(out_dir or report_dir(profile, ablation_report_name(env_id)))
     return write_ablation_report(cells, sac_outcome, chosen, env_id,
                                  f"ablate-threshold-{profile}-{env_id}-s{n_seeds}", storage, [],
                                  out_dir)

@@ -8,7 +8,18 @@ import os
 import sys
 from pathlib import Path
 
-DEFAULT_STORE = Path(os.environ.get("REPLICATE_STORE", "runs"))
+# The committed run store; smoke-profile runs (numbers that mean nothing) go to their own.
+DEFAULT_STORE = Path("runs")
+SMOKE_STORE = Path("runs-smoke")
+PROFILE_NAMES = ("smoke", "quick", "reduced", "paper")  # replicate.profiles.PROFILES (tested)
+STORE_HELP = ("run store directory (default: $REPLICATE_STORE, else runs/, the committed "
+              "store, or runs-smoke/ for the smoke profile)")
+
+
+def default_store(profile: str | None) -> Path:
+    if os.environ.get("REPLICATE_STORE"):
+        return Path(os.environ["REPLICATE_STORE"])
+    return SMOKE_STORE if profile == "smoke" else DEFAULT_STORE
 
 
 def _seed_list(text: str) -> list[int]:
@@ -96,8 +107,7 @@ def _build_parser() -> argparse.ArgumentParser:
     train.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                        help="override a hyperparameter, e.g. --set guide_threshold=0.1 "
                             "(repeatable; `python -m replicate algos` shows them)")
-    train.add_argument("--store", type=Path, default=DEFAULT_STORE,
-                       help="run store directory (also set by $REPLICATE_STORE)")
+    train.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     train.add_argument("--checkpoint-interval", type=int, default=10_000,
                        help="env steps between checkpoints (at the next episode end; 0: "
                             "none); an interrupted run resumes from its last one")
@@ -154,14 +164,14 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Run the Fig. 3 grid for a profile (only runs missing from the store are "
                     "trained), then write the self-contained HTML report.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    fig3.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+    fig3.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
                       help="budget profile: smoke (seconds, numbers mean nothing), quick "
                            "(reduced replication, under an hour on 2 cores), paper")
     fig3.add_argument("--seeds", type=int, default=None,
                       help="number of seeds (default: the profile's)")
     fig3.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
-    fig3.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig3.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     _add_device_argument(fig3, grid=True)
     fig3.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
@@ -181,7 +191,7 @@ def _build_parser() -> argparse.ArgumentParser:
                     "Ant-v5, or --env, and write reports/fig4/index.html: one panel per "
                     "seed, paired differences, claim 5.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    fig4.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+    fig4.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
                       help="budget profile")
     fig4.add_argument("--env", default="Ant-v5", help="environment (the paper's is Ant-v5)")
     fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
@@ -191,7 +201,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    fig4.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    fig4.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     fig4.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig4)")
 
@@ -202,7 +212,7 @@ def _build_parser() -> argparse.ArgumentParser:
                     "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
                     "workers can share one --storage.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ablate.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
+    ablate.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
                         help="budget profile (as for fig3)")
     ablate.add_argument("--seeds", type=int, default=None,
                         help="number of seeds (default: the profile's)")
@@ -218,7 +228,11 @@ def _build_parser() -> argparse.ArgumentParser:
     ablate.add_argument("--executor", default="local", choices=["local", "ray"],
                         help="local processes, or tasks on a running Ray cluster (--address)")
     ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    ablate.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    ablate.add_argument("--env", default="MountainCarContinuous-v0",
+                        help="the env to sweep: MountainCar (absolute T2 grid), or Ant-v5 or "
+                             "Walker2d-v5 (T2 at 1, 4, 16, 64 times the median demonstration-"
+                             "state spacing, and always; 3 seeds)")
+    ablate.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     ablate.add_argument("--out", type=Path, default=None,
                         help="report directory (default: reports/ablate-threshold)")
 
@@ -229,11 +243,12 @@ def _build_parser() -> argparse.ArgumentParser:
                     "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
                     "are when the store holds none of their runs.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    report.add_argument("--profile", default="quick", choices=["smoke", "quick", "paper"],
-                        help="which profile's grid to report")
+    report.add_argument("--profile", default=None, choices=PROFILE_NAMES,
+                        help="which profile's reports to rebuild (default: every profile but "
+                             "smoke whose runs are in the store)")
     report.add_argument("--seeds", type=int, default=None,
                         help="number of seeds (default: the profile's)")
-    report.add_argument("--store", type=Path, default=DEFAULT_STORE, help="run store directory")
+    report.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     report.add_argument("--out", type=Path, default=None,
                         help="parent directory of the reports (default: reports/, or "
                              "reports/smoke/ for the smoke profile)")
@@ -374,30 +389,42 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     workers=args.workers, thresholds=args.thresholds,
                                     sigmas=args.sigmas, executor=args.executor,
                                     address=args.address, device=args.device,
-                                    gpu_workers=args.gpu_workers, batch=args.batch)
+                                    gpu_workers=args.gpu_workers, batch=args.batch,
+                                    env_id=args.env)
     print(f"report: {report}")
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from replicate.ablation import rebuild_threshold_ablation
+    from replicate.ablation import (ABLATION_ENV, MUJOCO_ABLATION_ENVS, ablation_report_name,
+                                    rebuild_threshold_ablation)
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
     from replicate.table1 import write_table1_report
 
-    out = args.out
-    rebuilt = {
-        "Fig. 3": rebuild_figure3(profile=args.profile, seeds=args.seeds, store=args.store,
-                                  out_dir=out / "fig3" if out else _default_out(args.profile)),
-        "Fig. 4": (rebuild_figure4(args.profile, FIG4_ENV, None, args.store,
-                                   out / "fig4" if out else None)
-                   if default_demo_path(FIG4_ENV).is_file() else None),
-        "threshold ablation": rebuild_threshold_ablation(
-            args.profile, args.store, out / "ablate-threshold" if out else None)}
-    for name, path in rebuilt.items():
-        print(f"report: {path}" if path else
-              f"{name}: no runs of the {args.profile} profile in {args.store}; left as it is")
-    table1 = write_table1_report(out / "table1" if out else Path("reports/table1"))
+    from replicate.profiles import report_dir
+
+    profiles = [args.profile] if args.profile else [p for p in PROFILE_NAMES if p != "smoke"]
+
+    def target(profile: str, name: str) -> Path:
+        if args.out is None:
+            return report_dir(profile, name)
+        return args.out / profile / name if len(profiles) > 1 else args.out / name
+
+    for profile in profiles:
+        rebuilt = {
+            "Fig. 3": rebuild_figure3(profile=profile, seeds=args.seeds, store=args.store,
+                                      out_dir=target(profile, "fig3")),
+            "Fig. 4": (rebuild_figure4(profile, FIG4_ENV, None, args.store,
+                                       target(profile, "fig4"))
+                       if default_demo_path(FIG4_ENV).is_file() else None),
+            **{f"threshold ablation on {env_id}": rebuild_threshold_ablation(
+                profile, args.store, target(profile, ablation_report_name(env_id)), env_id)
+               for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS)}}
+        for name, path in rebuilt.items():
+            print(f"report: {path}" if path else
+                  f"{name}: no runs of the {profile} profile in {args.store}; left as it is")
+    table1 = write_table1_report(args.out / "table1" if args.out else Path("reports/table1"))
     print(f"report: {table1}")
     return 0
 
@@ -444,6 +471,8 @@ def main(argv: list[str] | None = None) -> int:
     from replicate.errors import HarnessError
 
     args = _build_parser().parse_args(argv)
+    if getattr(args, "store", "absent") is None:
+        args.store = default_store(getattr(args, "profile", None))
     try:
         return COMMANDS[args.command](args)
     except HarnessError as exc:

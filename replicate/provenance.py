@@ -47,6 +47,24 @@ def code_revision() -> str:
     return git_revision()
 
 
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def portable_path(path: Path | str, resolve: bool = True) -> str:
+    """``path`` relative to the project's root when it lies inside it (a committed run names
+    no directory of the machine that trained it), else as given."""
+    path = Path(path).resolve() if resolve else Path(path).absolute()
+    try:
+        return path.relative_to(PROJECT_ROOT).as_posix()
+    except ValueError:
+        return str(path)
+
+
 def machine() -> dict[str, str | int]:
+    # the interpreter by its venv path inside the project (not resolved: a venv's python is
+    # a link to the system's), by its name alone outside it
+    executable = portable_path(sys.executable, resolve=False)
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count() or 0, "python_executable": sys.executable}
+            "cpu_count": os.cpu_count() or 0,
+            "python_executable": executable if not Path(executable).is_absolute()
+            else Path(executable).name}

@@ -39,6 +39,7 @@ from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import get_algorithm
 from replicate import provenance
+from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.errors import HarnessError
@@ -74,18 +75,6 @@ class PreparedRun:
 
     def directory(self, store: Path) -> Path:
         return Path(store) / self.run_id
-
-
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-
-
-def portable_path(path: Path) -> str:
-    """``path`` relative to the project's root when it lies inside it (a committed run names
-    no directory of the machine that trained it), else as given."""
-    try:
-        return Path(path).resolve().relative_to(PROJECT_ROOT).as_posix()
-    except ValueError:
-        return str(path)
 
 
 def prepare(spec: RunSpec) -> PreparedRun:

@@ -55,3 +55,40 @@ def test_a_failed_grid_point_is_trained_when_the_sweep_runs_again(tmp_path):
     assert main(args) == 0
     rows = json.loads((out / "summary.json").read_text())["rows"]
     assert [len(r["runs"]) for r in rows] == [1, 1]
+
+
+def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(tmp_path,
+                                                                                 monkeypatch):
+    import dataclasses
+
+    from replicate import ablation, profiles
+
+    env_id = "Walker2d-v5"
+    smoke = profiles.PROFILES["smoke"]
+    tiny = dataclasses.replace(smoke, steps={**smoke.steps, env_id: 200},
+                               eval_interval={**smoke.eval_interval, env_id: 100})
+    monkeypatch.setitem(profiles.PROFILES, "smoke", tiny)
+    spacing = ablation.threshold_spacing(env_id)
+    assert spacing and ablation.default_thresholds("smoke", env_id) == [
+        spacing, 4 * spacing, 16 * spacing, 64 * spacing, ablation.ALWAYS]
+    store, out = tmp_path / "runs", tmp_path / "report"
+    assert main(["ablate-threshold", "--profile", "smoke", "--env", env_id, "--seeds", "1",
+                 "--store", str(store), "--out", str(out), "--workers", "1",
+                 "--device", "cpu"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["spacing"] == spacing
+    assert [r["label"].split(" ")[0] for r in summary["rows"]] == [
+        "1x", "4x", "16x", "64x", "always"]
+    html = (out / "index.html").read_text()
+    assert 'id="curves"' in html and html.count("data:image/png;base64,") == 2
+    # the guided share grows with T2; an untrained policy keeps the gate open, so always-guide
+    # takes every training step after the first evaluation
+    fractions = []
+    for row in summary["rows"]:
+        curve = pd.read_csv(store / row["runs"][0] / "curve.csv")
+        fractions.append(float(curve["guided_fraction"].iloc[1:].mean()))
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0 and fractions[0] < 1.0
+    # the rebuilt report (the `report` command's path) reads the same runs
+    rebuilt = ablation.rebuild_threshold_ablation("smoke", store, tmp_path / "again", env_id)
+    again = json.loads((rebuilt.parent / "summary.json").read_text())
+    assert again["rows"] == summary["rows"]
