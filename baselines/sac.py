@@ -196,6 +196,10 @@ class PolicyExplorer:
         """See an evaluation's mean return; report a gate state if there is one."""
         return None
 
+    def episode_start(self) -> None:
+        """Called after every env reset, before the episode's first ``choose`` (JSRL counts
+        the steps of an episode from here)."""
+
     def state_dict(self) -> dict[str, Any]:
         return {}
 
@@ -206,19 +210,22 @@ class PolicyExplorer:
 DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the critic loss on a GPU
 
 
-def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer) -> ReplayBuffer:
+def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
+                   buffer: ReplayBuffer | None = None) -> ReplayBuffer:
     """The SAC training loop, shared with DRL-EG (Algorithm 1 of the paper).
 
     The executed action is what goes in the buffer, guided or not; the buffer is returned.
-    With ``ctx.checkpoint_path`` set, the loop checkpoints at episode ends and resumes from
-    a checkpoint it finds there.
+    ``buffer`` replaces the empty one the loop would make (IBRL preloads demonstrations,
+    RLPD samples half of each batch from them). With ``ctx.checkpoint_path`` set, the loop
+    checkpoints at episode ends and resumes from a checkpoint it finds there.
     """
     cfg = agent.config
     torch.set_num_threads(cfg.torch_threads)
     env = make_env(ctx.env_id, seed=ctx.seed)
     eval_env = make_env(ctx.env_id, seed=ctx.seed + EVAL_SEED_OFFSET)
     obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    buffer = ReplayBuffer(obs_dim, act_dim, min(cfg.buffer_size, ctx.total_steps))
+    if buffer is None:
+        buffer = ReplayBuffer(obs_dim, act_dim, min(cfg.buffer_size, ctx.total_steps))
     batch_rng = np.random.default_rng(ctx.seed)
     curve: list[EvalPoint] = []
     best_return = -np.inf
@@ -249,6 +256,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
         start = 1
         evaluate_and_record(0, 0, 0)
         obs, _ = env.reset(seed=ctx.seed)
+        explorer.episode_start()
         guided_steps = steps_since_eval = 0
     else:
         start = resumed["step"] + 1
@@ -271,6 +279,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
             ctx.on_eval(point)
         ctx.on_steps(resumed["step"])
         obs, _ = env.reset()  # checkpoints are taken where an episode has just ended
+        explorer.episode_start()
     last_checkpoint = start - 1
 
     for step in range(start, ctx.total_steps + 1):
@@ -302,6 +311,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer)
                 save(step)
                 last_checkpoint = step
             obs, _ = env.reset()
+            explorer.episode_start()
     env.close()
     eval_env.close()
     return buffer

@@ -140,20 +140,30 @@ class TwinQSACAgent(PolicyActor):
         return self.gradient_step(
             obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
             next_obs=batch.next_observations, terminated=batch.terminated,
-            next_noise=next_noise, new_noise=new_noise)
+            next_noise=next_noise, new_noise=new_noise, **self.target_inputs(batch))
+
+    def target_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Further tensors that ``next_state_value`` takes (IBRL: the imitation action at s')."""
+        return {}
+
+    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
+                         alpha: torch.Tensor) -> torch.Tensor:
+        """Soft value of s' under the target critics: min_i Q'_i(s', a') - alpha log pi(a'|s')."""
+        next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
+        next_q = self.critics_target(next_obs, next_actions).min(dim=0).values
+        return next_q - alpha * next_log_prob
 
     def _gradient_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
                        next_obs: torch.Tensor, terminated: torch.Tensor,
-                       next_noise: torch.Tensor, new_noise: torch.Tensor
-                       ) -> dict[str, torch.Tensor]:
+                       next_noise: torch.Tensor, new_noise: torch.Tensor,
+                       **target_inputs: torch.Tensor) -> dict[str, torch.Tensor]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
 
         # Critics regress on the soft value of the next state under the target critics.
         with torch.no_grad():
-            next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-            next_q = self.critics_target(next_obs, next_actions).min(dim=0).values
-            y = rewards + cfg.gamma * (1.0 - terminated) * (next_q - alpha * next_log_prob)
+            next_value = self.next_state_value(next_obs, next_noise, alpha, **target_inputs)
+            y = rewards + cfg.gamma * (1.0 - terminated) * next_value
         q_loss = 0.5 * (self.critics(obs, actions) - y).pow(2).mean(dim=1).sum()
         self.critic_optimizer.zero_grad()
         q_loss.backward()
