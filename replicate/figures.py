@@ -28,10 +28,13 @@ class CurveBand:
 
 
 def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float],
-                        title: str) -> bytes:
+                        title: str,
+                        reference_points: dict[str, list[tuple[int, float, float]]] | None = None
+                        ) -> bytes:
     """One panel per env, one line per algorithm (mean) with a shaded 95% CI band.
 
-    ``reference_lines`` maps env id to the demonstrations' mean return, drawn dashed.
+    ``reference_lines`` maps env id to the demonstrations' mean return, drawn dashed;
+    ``reference_points`` to published SAC's (steps, mean, sd), drawn as points with bars.
     """
     sns.set_theme(style="whitegrid", context="notebook")
     envs = list(dict.fromkeys(b.env_id for b in bands))
@@ -53,6 +56,11 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
         if env_id in reference_lines:
             ax.axhline(reference_lines[env_id], color="0.3", linestyle="--", linewidth=1,
                        label="demonstrations")
+        published = (reference_points or {}).get(env_id)
+        if published:
+            xs, ys, sds = zip(*published)
+            ax.errorbar(xs, ys, yerr=sds, fmt="D", color="0.15", markersize=4, capsize=2,
+                        linewidth=0.8, label="published SAC (Tianshou, -v3)")
         ax.set_title(env_id)
         ax.legend(fontsize=8, loc="best")
     fig.suptitle(title, fontsize=11)

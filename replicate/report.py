@@ -20,7 +20,8 @@ from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Pro
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
 from replicate.claims import Group, judge_claims
-from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean,
+from replicate.published import published_points
+from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
                              probability_of_improvement, score_profile, stratified_bootstrap_ci)
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
@@ -72,9 +73,9 @@ def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
     """The runs of each (env, algorithm) as the claims ledger reads them."""
     groups = {}
     for (env_id, algo), members in group_runs(runs).items():
-        _, matrix = curve_matrix(members)
+        steps, matrix = curve_matrix(members)
         groups[(env_id, algo)] = Group(env_id, algo, [r.spec["seed"] for r in members],
-                                       matrix[:, -1], matrix)
+                                       matrix[:, -1], matrix, steps)
     return groups
 
 
@@ -112,6 +113,54 @@ def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[s
             "png_b64": base64.b64encode(png).decode()}
 
 
+REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstrations' return
+
+
+def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
+                    rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
+    ``REACH_FRACTION`` of the demonstrations' return, each with a bootstrap CI over seeds."""
+    def estimate(values: np.ndarray) -> dict[str, Any]:
+        values = values[np.isfinite(values)]
+        if not len(values):
+            return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
+        est = bootstrap_mean(values, rng)
+        return {"mean": float(est.value[0]), "low": float(est.low[0]),
+                "high": float(est.high[0]), "n": int(len(values))}
+
+    rows = []
+    for (env_id, algo), group in sorted(groups.items()):
+        if env_id not in demo_returns:
+            continue
+        level = REACH_FRACTION * demo_returns[env_id]
+        rows.append({"env_id": env_id, "algo": algo, "n": len(group.seeds),
+                     "area": estimate(group.areas),
+                     "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
+                     "level": level})
+    return rows
+
+
+def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int],
+                   rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Our SAC beside published SAC at every published budget within ours."""
+    rows = []
+    for env_id in sorted({e for e, _ in groups}):
+        if env_id not in budgets:
+            continue
+        sac = groups.get((env_id, "sac"))
+        for point in published_points(env_id, budgets[env_id]):
+            ours = None
+            if sac is not None and sac.steps is not None and point.steps in set(sac.steps):
+                column = sac.curves[:, list(sac.steps).index(point.steps)]
+                est = bootstrap_mean(column, rng)
+                ours = {"mean": float(est.value[0]), "low": float(est.low[0]),
+                        "high": float(est.high[0]), "n": len(column)}
+            rows.append({"env_id": env_id, "steps": point.steps, "mean": point.mean,
+                         "std": point.std, "label": point.label, "source": point.source,
+                         "ours": ours})
+    return rows
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
@@ -136,9 +185,14 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     groups = claim_groups(runs)
     claims = judge_claims(groups, demo_lines, REPORT_SEED, profile.meaningful)
     aggregate = aggregate_metrics(groups, demo_lines, rng)
+    efficiency = efficiency_rows(groups, demo_lines, rng)
+    published = published_rows(groups, profile.steps, rng)
     title = f"Fig. 3 replication, profile '{profile.name}'"
-    figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title)).decode()
-              if bands else None)
+    points = {env_id: [(p.steps, p.mean, p.std) for p in published_points(env_id, steps)
+                       if p.source == "tianshou"]
+              for env_id, steps in profile.steps.items() if env_id in {b.env_id for b in bands}}
+    figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title,
+                                                   points)).decode() if bands else None)
     revisions = sorted({r.provenance["git_revision"] for r in runs})
     first = runs[0].provenance if runs else {}
     budgets = [{"env_id": env_id, "steps": profile.steps[env_id],
@@ -157,6 +211,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "revisions": revisions or [provenance.git_revision()],
         "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
         "grid_wall_s": outcome.wall_time_s, "confidence": CONFIDENCE,
+        "efficiency": efficiency, "published": published, "reach_fraction": REACH_FRACTION,
     }
     env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
                              autoescape=jinja2.select_autoescape(["html"]),
@@ -175,6 +230,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "aggregate": None if aggregate is None else {
             k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
+        "efficiency": efficiency, "published_sac": published,
         "git_revisions": context["revisions"],
     }
     _atomic_write(out_dir / "summary.json",

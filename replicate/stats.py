@@ -173,3 +173,21 @@ def hedges_g(a: np.ndarray, b: np.ndarray) -> float:
         return float("nan")
     correction = 1 - 3 / (4 * (n_a + n_b) - 9)
     return float(correction * (a.mean() - b.mean()) / pooled)
+
+
+def curve_area(steps: np.ndarray, curves: np.ndarray) -> np.ndarray:
+    """Per run, the mean evaluation return over the run: the trapezoid area under its curve
+    divided by the span of steps (rewards learning early as well as ending high)."""
+    steps, curves = np.asarray(steps, float), np.atleast_2d(np.asarray(curves, float))
+    if len(steps) < 2:
+        return curves[:, -1].copy()
+    return np.trapezoid(curves, steps, axis=1) / (steps[-1] - steps[0])
+
+
+def steps_to_reach(steps: np.ndarray, curves: np.ndarray, level: float) -> np.ndarray:
+    """Per run, the first evaluation step at which its return reaches ``level``; NaN for a
+    run that never does within its curve."""
+    steps, curves = np.asarray(steps, float), np.atleast_2d(np.asarray(curves, float))
+    reached = curves >= level
+    first = np.argmax(reached, axis=1)
+    return np.where(reached.any(axis=1), steps[first], np.nan)

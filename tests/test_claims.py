@@ -84,3 +84,22 @@ def test_missing_runs_and_meaningless_profiles_are_not_judged():
     groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94])}
     smoke = judge_claims(groups, {}, 0, meaningful=False)
     assert smoke[0]["verdict"] == "not judged (smoke profile: numbers mean nothing)"
+
+
+def test_mujoco_claims_judge_the_curves_and_state_what_the_budget_can_show():
+    from replicate.claims import ANT, WALKER, Group, judge_claims
+
+    steps = np.arange(0, 200_001, 50_000)
+    rising = np.array([[0, 500, 1000, 1500, 2000.0]] * 3) + np.arange(3)[:, None]
+    early = np.array([[0, 1500, 1900, 2000, 2000.0]] * 3) + np.arange(3)[:, None]
+    groups = {}
+    for env in (WALKER, ANT):
+        # same final return, but DRL-EG gets there earlier: only the area tells them apart
+        groups[(env, "sac")] = Group(env, "sac", [0, 1, 2], rising[:, -1], rising, steps)
+        groups[(env, "drl-eg")] = Group(env, "drl-eg", [0, 1, 2], early[:, -1], early, steps)
+    claim_3 = judge_claims(groups, {WALKER: 2000.0, ANT: 2000.0}, 0, True)[2]
+    areas = [p for p in claim_3["parts"] if "area under the curve" in p["what"]]
+    finals = [p for p in claim_3["parts"] if p["what"].endswith("SAC above 0")]
+    assert len(areas) == 2 and all(p["verdict"] == "reproduced" for p in areas)
+    assert all(p["verdict"] != "reproduced" for p in finals)  # equal ends: not above 0
+    assert "200,000 steps" in claim_3["budget_note"]

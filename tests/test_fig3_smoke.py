@@ -3,6 +3,8 @@
 import json
 import re
 
+import numpy as np
+
 from replicate.cli import main
 from replicate.experiments import FIG3_ALGORITHMS
 
@@ -59,3 +61,20 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "Fig. 3: no runs of the smoke profile" in printed and "left as it is" in printed
     assert (out / "table1" / "index.html").is_file()  # Table 1 needs no runs
+
+
+def test_published_sac_sits_beside_ours_at_the_same_steps():
+    from replicate.claims import Group
+    from replicate.published import published_points
+    from replicate.report import efficiency_rows, published_rows
+
+    steps = np.array([0, 100_000, 200_000])
+    curves = np.array([[0, 900, 2000.0], [0, 1100, 2400.0]])
+    groups = {("Ant-v5", "sac"): Group("Ant-v5", "sac", [0, 1], curves[:, -1], curves, steps)}
+    rows = published_rows(groups, {"Ant-v5": 200_000}, np.random.default_rng(0))
+    tianshou = [r for r in rows if r["source"] == "tianshou"]
+    assert [r["steps"] for r in tianshou] == [100_000, 200_000]  # none beyond our budget
+    assert tianshou[1]["ours"]["mean"] == 2200.0 and tianshou[1]["ours"]["n"] == 2
+    assert tianshou[1]["mean"] == published_points("Ant-v5", 200_000)[1].mean == 2133.0
+    eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, np.random.default_rng(0))
+    assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200

@@ -61,3 +61,15 @@ def test_iqm_and_profile_hand_computed():
     assert interquartile_mean(scores) == pytest.approx(3.5)  # mean of 2, 3, 4, 5
     assert score_profile(scores, np.array([2.5, 50.0])).tolist() == [5 / 8, 1 / 8]
     assert optimality_gap(np.array([[0.5], [1.5]])) == pytest.approx(0.25)
+
+
+def test_curve_area_and_steps_to_reach_hand_computed():
+    from replicate.stats import curve_area, steps_to_reach
+
+    steps = np.array([0, 100, 300])
+    curves = np.array([[0.0, 10.0, 10.0], [0.0, 0.0, 30.0]])
+    # trapezoids over 300 steps: (100 * 5 + 200 * 10) / 300 and (200 * 15) / 300
+    np.testing.assert_allclose(curve_area(steps, curves), [2500 / 300, 10.0])
+    reach = steps_to_reach(steps, curves, 10.0)
+    assert reach[0] == 100 and reach[1] == 300
+    assert np.isnan(steps_to_reach(steps, curves, 50.0)).all()  # never reached: no value
