@@ -51,6 +51,14 @@ def ablate_threshold(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(name="compare-rlfd", python=PYTHON)
+def compare_rlfd(session: nox.Session) -> None:
+    """DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD on shared demonstrations: reports/rlfd."""
+    _install(session)
+    session.run("python", "-m", "replicate", "compare-rlfd", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 @nox.session(python=PYTHON)
 def bench(session: nox.Session) -> None:
     """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""

@@ -236,6 +236,25 @@ def _build_parser() -> argparse.ArgumentParser:
     ablate.add_argument("--out", type=Path, default=None,
                         help="report directory (default: reports/ablate-threshold)")
 
+    rlfd = sub.add_parser(
+        "compare-rlfd", help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
+        description="Train the comparison grid (only runs missing from the store) on the "
+                    "profile's tasks and write reports/rlfd/index.html: normalised scores, IQM, "
+                    "probability of improvement, performance profiles, sample-efficiency "
+                    "curves and a verdict per method and task.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    rlfd.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
+                      help="budget profile: quick is MountainCar; reduced adds the sparse "
+                           "dm-control tasks, Hopper and Ant")
+    rlfd.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
+    rlfd.add_argument("--workers", type=int, default=None,
+                      help="parallel training processes (default: one per core)")
+    rlfd.add_argument("--store", type=Path, default=None, help=STORE_HELP)
+    rlfd.add_argument("--out", type=Path, default=None, help="report directory")
+    rlfd.add_argument("--checkpoint-interval", type=int, default=10_000,
+                      help="env steps between checkpoints of a run")
+    _add_device_argument(rlfd, grid=True)
+
     report = sub.add_parser(
         "report", help="rebuild reports from the run store without training",
         description="Rebuild every report of a profile (Fig. 3, Fig. 4, the threshold "
@@ -395,11 +414,23 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_rlfd(args: argparse.Namespace) -> int:
+    from replicate.rlfd import run_rlfd
+
+    report = run_rlfd(profile=args.profile, seeds=args.seeds, store=args.store,
+                      out_dir=args.out, workers=args.workers,
+                      checkpoint_interval=args.checkpoint_interval, device=args.device,
+                      batch=args.batch)
+    print(f"report: {report}")
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from replicate.ablation import (ABLATION_ENV, MUJOCO_ABLATION_ENVS, ablation_report_name,
                                     rebuild_threshold_ablation)
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
+    from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
 
     from replicate.profiles import report_dir
@@ -418,6 +449,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
             "Fig. 4": (rebuild_figure4(profile, FIG4_ENV, None, args.store,
                                        target(profile, "fig4"))
                        if default_demo_path(FIG4_ENV).is_file() else None),
+            "DRL-EG against IBRL, RLPD, JSRL": rebuild_rlfd(profile, args.store,
+                                                            target(profile, "rlfd")),
             **{f"threshold ablation on {env_id}": rebuild_threshold_ablation(
                 profile, args.store, target(profile, ablation_report_name(env_id)), env_id)
                for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS)}}
@@ -462,7 +495,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3, "fig4": _cmd_fig4,
+COMMANDS = {"compare-rlfd": _cmd_rlfd, "train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3, "fig4": _cmd_fig4,
             "report": _cmd_report, "table1": _cmd_table1, "ablate-threshold": _cmd_ablate,
             "algos": _cmd_algos, "envs": _cmd_envs}
 

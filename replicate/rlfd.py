@@ -1,0 +1,310 @@
+"""Beyond the paper: DRL-EG against today's demonstration-guided RL (IBRL, RLPD, JSRL).
+
+Every method learns from the same demonstration files and seeds as DRL-EG. Scores are
+normalised per task by the demonstrations and a uniform random policy,
+(R - R_random) / (R_demo - R_random), so tasks of different reward scales aggregate; the
+statistics are those of Agarwal et al. (2021): the interquartile mean over runs and tasks
+with stratified-bootstrap CIs, the probability that DRL-EG beats each method, performance
+profiles and sample-efficiency curves (IQM normalised score against the share of each
+task's budget). The verdict table reads like the claims ledger: DRL-EG better, worse or
+inconclusive per method and task, from the bootstrap CI of the difference of mean final
+normalised scores.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import io
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import jinja2
+import numpy as np
+
+from replicate.errors import HarnessError
+from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults, run_grid,
+                                   stored_runs)
+from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
+from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
+from replicate.spec import RunSpec
+from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
+                             probability_of_improvement, score_profile,
+                             stratified_bootstrap_ci)
+
+RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
+MOUNTAINCAR = "MountainCarContinuous-v0"
+CARTPOLE_SPARSE = "dm_control/cartpole-swingup_sparse-v0"
+BALL_IN_CUP = "dm_control/ball_in_cup-catch-v0"
+# Budgets (env steps, evaluation interval) per profile. MountainCar's match Fig. 3's, so its
+# SAC, DRL-EG and DDPGfD runs are shared with that figure. The sparse dm-control budgets are
+# those their dense experts needed (cartpole 40k steps, ball-in-cup 20k) with room to spare.
+RLFD_BUDGETS: dict[str, dict[str, tuple[int, int]]] = {
+    "smoke": {MOUNTAINCAR: (1200, 400)},
+    "quick": {MOUNTAINCAR: (20_000, 1000)},
+    "reduced": {MOUNTAINCAR: (20_000, 1000), CARTPOLE_SPARSE: (50_000, 5000),
+                BALL_IN_CUP: (50_000, 5000), "Hopper-v5": (200_000, 5000),
+                "Ant-v5": (200_000, 5000)},
+    "paper": {MOUNTAINCAR: (100_000, 2000), CARTPOLE_SPARSE: (200_000, 10_000),
+              BALL_IN_CUP: (200_000, 10_000), "Hopper-v5": (1_000_000, 10_000),
+              "Ant-v5": (1_000_000, 10_000)},
+}
+RLFD_SEEDS = 5
+RANDOM_EPISODES = 10
+REPORT_SEED = 20_261_126
+CURVE_FRACTIONS = np.linspace(0.0, 1.0, 11)  # sample-efficiency curve: shares of the budget
+
+
+def rlfd_grid(profile: Profile, seeds: int | None = None, algorithms: tuple[str, ...] | None = None
+              ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+    """Every method x task x seed of the profile, and the (task, method, reason) cells left
+    out: a method not registered, or a task without demonstrations."""
+    from baselines.registry import UnknownAlgorithmError, get_algorithm
+    from replicate.demos import default_demo_path
+
+    n_seeds = RLFD_SEEDS if seeds is None else seeds
+    if n_seeds <= 0:
+        raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 5")
+    specs, skipped = [], []
+    for env_id, (steps, interval) in RLFD_BUDGETS[profile.name].items():
+        for algo in algorithms or RLFD_ALGORITHMS:
+            try:
+                algorithm = get_algorithm(algo)
+            except UnknownAlgorithmError:
+                skipped.append((env_id, algo, "not registered in this checkout"))
+                continue
+            if algorithm.needs_demos and not default_demo_path(env_id).is_file():
+                skipped.append((env_id, algo, "no committed demonstrations for this env yet"))
+                continue
+            hyper = algorithm_overrides(algo, profile.overrides)
+            if algo.startswith("drl-eg"):
+                hyper.update(drl_eg_env_defaults(env_id))
+            specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes,
+                              hyper) for seed in range(n_seeds)]
+    return specs, skipped
+
+
+@functools.cache
+def random_return(env_id: str, episodes: int = RANDOM_EPISODES, seed: int = 0) -> float:
+    """Mean return of uniformly random actions over ``episodes`` episodes (seeded)."""
+    from envs import make_env
+
+    env = make_env(env_id, seed=seed)
+    env.action_space.seed(seed)
+    totals = []
+    for _ in range(episodes):
+        env.reset()
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            total += float(reward)
+            done = terminated or truncated
+        totals.append(total)
+    env.close()
+    return float(np.mean(totals))
+
+
+def normalised(returns: np.ndarray, random: float, demo: float) -> np.ndarray:
+    """(R - R_random) / (R_demo - R_random): 0 is random play, 1 the demonstrations."""
+    span = demo - random
+    if span <= 0:
+        raise HarnessError(f"the demonstrations' return {demo:.3g} is not above random play's "
+                           f"{random:.3g}", "retrain the expert and regenerate demonstrations")
+    return (np.asarray(returns, float) - random) / span
+
+
+def _at_fractions(run: Run, budget: int) -> np.ndarray:
+    """The run's evaluation return at each share of the budget in CURVE_FRACTIONS."""
+    steps = run.curve["step"].to_numpy(float)
+    return np.interp(CURVE_FRACTIONS * budget, steps, run.curve["return_mean"].to_numpy(float))
+
+
+def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random.Generator
+            ) -> dict[str, Any]:
+    """The statistics of the report from complete runs (pure given the runs and rng)."""
+    by_cell: dict[tuple[str, str], list[Run]] = {}
+    for run in runs:
+        by_cell.setdefault((run.spec["env_id"], run.spec["algo"]), []).append(run)
+    tasks = [t for t in budgets if any(e == t for e, _ in by_cell)]
+    algos = [a for a in RLFD_ALGORITHMS if any(x == a for _, x in by_cell)]
+    reference = {}
+    for task in tasks:
+        demo = next(r.provenance["demos"]["expert_return_mean"]
+                    for (e, _), members in by_cell.items() if e == task
+                    for r in members if r.provenance.get("demos"))
+        reference[task] = {"random": random_return(task), "demo": float(demo)}
+
+    def scores(task: str, algo: str) -> np.ndarray:
+        ref = reference[task]
+        finals = [r.final_return for r in sorted(by_cell[(task, algo)],
+                                                 key=lambda r: r.spec["seed"])]
+        return normalised(np.array(finals), ref["random"], ref["demo"])
+
+    cells = [{"env_id": t, "algo": a, "n": len(by_cell[(t, a)]),
+              "final_normalised": float(np.mean(scores(t, a))),
+              "runs": sorted(r.path.name for r in by_cell[(t, a)])}
+             for t in tasks for a in algos if (t, a) in by_cell]
+
+    verdicts = []
+    for task in tasks:
+        if (task, "drl-eg") not in by_cell:
+            continue
+        for algo in algos:
+            if algo == "drl-eg" or (task, algo) not in by_cell:
+                continue
+            diff = bootstrap_mean_difference(scores(task, "drl-eg"), scores(task, algo), rng)
+            verdict = ("DRL-EG better" if diff.low > 0 else "DRL-EG worse" if diff.high < 0
+                       else "inconclusive")
+            verdicts.append({"env_id": task, "other": algo, "effect": float(diff.value),
+                             "low": float(diff.low), "high": float(diff.high),
+                             "verdict": verdict})
+
+    # Aggregates over the tasks where every method has runs, on as many seeds as all have.
+    full = [t for t in tasks if all((t, a) in by_cell for a in algos)]
+    aggregate = None
+    if full and algos:
+        n = min(len(by_cell[(t, a)]) for t in full for a in algos)
+        if n >= 2:
+            matrix = {a: np.stack([scores(t, a)[:n] for t in full], axis=1) for a in algos}
+            taus = np.linspace(0.0, 1.5, 61)
+            iqm, profiles, improvement, efficiency = {}, {}, [], {}
+            for algo in algos:
+                est = stratified_bootstrap_ci(interquartile_mean, (matrix[algo],), rng)
+                iqm[algo] = [float(est.value), float(est.low), float(est.high)]
+                prof = stratified_bootstrap_ci(lambda s: score_profile(s, taus),
+                                               (matrix[algo],), rng)
+                profiles[algo] = (prof.value, prof.low, prof.high)
+                curves = np.stack([np.stack([
+                    normalised(_at_fractions(r, budgets[t][0]), reference[t]["random"],
+                               reference[t]["demo"])
+                    for r in sorted(by_cell[(t, algo)], key=lambda r: r.spec["seed"])[:n]])
+                    for t in full], axis=1)  # (runs, tasks, fractions)
+                points = [stratified_bootstrap_ci(interquartile_mean, (curves[:, :, k],), rng)
+                          for k in range(len(CURVE_FRACTIONS))]
+                efficiency[algo] = tuple(np.array([float(getattr(p, part)) for p in points])
+                                         for part in ("value", "low", "high"))
+            if "drl-eg" in matrix:
+                for other in algos:
+                    if other != "drl-eg":
+                        est = stratified_bootstrap_ci(probability_of_improvement,
+                                                      (matrix["drl-eg"], matrix[other]), rng)
+                        improvement.append({"other": other, "value": float(est.value),
+                                            "low": float(est.low), "high": float(est.high)})
+            aggregate = {"tasks": full, "runs_per_task": n, "iqm": iqm,
+                         "improvement": improvement, "taus": taus, "profiles": profiles,
+                         "efficiency": efficiency}
+    return {"tasks": tasks, "algos": algos, "reference": reference, "cells": cells,
+            "verdicts": verdicts, "aggregate": aggregate}
+
+
+def _figure(aggregate: dict[str, Any]) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    sns.set_theme(style="whitegrid", context="notebook")
+    algos = list(aggregate["iqm"])
+    palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
+    fig, (left, middle, right) = plt.subplots(1, 3, figsize=(15, 3.8))
+    for row, algo in enumerate(algos):
+        value, low, high = aggregate["iqm"][algo]
+        left.errorbar([value], [row], xerr=[[value - low], [high - value]], fmt="o",
+                      color=palette[algo], capsize=4)
+    left.set_yticks(range(len(algos)), algos)
+    left.set_xlabel("IQM of final normalised score")
+    for algo, (value, low, high) in aggregate["profiles"].items():
+        middle.plot(aggregate["taus"], value, color=palette[algo], label=algo)
+        middle.fill_between(aggregate["taus"], low, high, color=palette[algo], alpha=0.2,
+                            linewidth=0)
+    middle.set_xlabel("normalised score tau")
+    middle.set_ylabel("fraction of runs above tau")
+    for algo, (value, low, high) in aggregate["efficiency"].items():
+        right.plot(CURVE_FRACTIONS, value, color=palette[algo], label=algo)
+        right.fill_between(CURVE_FRACTIONS, low, high, color=palette[algo], alpha=0.2,
+                           linewidth=0)
+    right.set_xlabel("share of each task's env-step budget")
+    right.set_ylabel("IQM normalised score")
+    right.legend(fontsize=8)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> Path:
+    from replicate import provenance
+    from replicate.report import _atomic_write
+
+    budgets = RLFD_BUDGETS[profile.name]
+    result = compare(outcome.runs, budgets, np.random.default_rng(REPORT_SEED))
+    aggregate = result["aggregate"]
+    context = {
+        "title": f"DRL-EG against IBRL, RLPD and JSRL, profile '{profile.name}'",
+        "profile": profile, "budgets": budgets, "result": result, "confidence": CONFIDENCE,
+        "figure_png_b64": base64.b64encode(_figure(aggregate)).decode() if aggregate else None,
+        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "failed": outcome.failed, "skipped": outcome.skipped,
+        "random_episodes": RANDOM_EPISODES,
+        "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
+        or [provenance.git_revision()],
+    }
+    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
+                                     autoescape=jinja2.select_autoescape(["html"]),
+                                     undefined=jinja2.StrictUndefined)
+    html = environment.get_template("rlfd.html").render(**context)
+    out_dir = Path(out_dir)
+    _atomic_write(out_dir / "index.html", html.encode())
+    summary = {
+        "profile": profile.name, "generated": context["generated"],
+        "budgets": {t: list(b) for t, b in budgets.items()},
+        "reference": result["reference"], "cells": result["cells"],
+        "verdicts": result["verdicts"],
+        "aggregate": None if aggregate is None else {
+            k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
+        "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
+        "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
+        "git_revisions": context["revisions"],
+    }
+    _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    return out_dir / "index.html"
+
+
+def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
+             out_dir: Path | None = None, workers: int | None = None,
+             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
+             batch: int | None = None) -> Path:
+    """Train what the comparison lacks, then write its report; return the report's path."""
+    chosen = get_profile(profile)
+    specs, skipped = rlfd_grid(chosen, seeds)
+    for env_id, algo, reason in skipped:
+        print(f"skipped {algo} on {env_id}: {reason}")
+    outcome = run_grid(specs, store, workers, checkpoint_interval, device=device, batch=batch)
+    outcome.skipped = skipped
+    report = write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
+    if outcome.failed:
+        raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "
+                           "lists them", "read the reasons there, fix, and run the same command")
+    return report
+
+
+def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
+                 seeds: int | None = None) -> Path | None:
+    """The report from the store alone; None (nothing written) when it holds none of the
+    grid's runs, so that a committed report stays."""
+    chosen = get_profile(profile)
+    specs, skipped = rlfd_grid(chosen, seeds)
+    runs = stored_runs(specs, store)
+    if not runs:
+        return None
+    have = {r.path.name for r in runs}
+    from replicate.runner import prepare
+
+    skipped += [(s.env_id, s.algo, f"seed {s.seed} not in {store} yet") for s in specs
+                if prepare(s).run_id not in have]
+    return write_rlfd_report(GridOutcome(runs, [], None, skipped), chosen,
+                             Path(out_dir or report_dir(profile, "rlfd")))

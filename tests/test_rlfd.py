@@ -1,0 +1,68 @@
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from replicate.cli import main
+from replicate.errors import HarnessError
+from replicate.rlfd import CURVE_FRACTIONS, compare, normalised, random_return
+from replicate.runner import Run
+
+TASK = "MountainCarContinuous-v0"
+DEMO = 95.0
+
+
+def _run(algo: str, seed: int, returns: list[float]) -> Run:
+    steps = np.linspace(0, 1000, len(returns)).astype(int)
+    curve = pd.DataFrame({"step": steps, "return_mean": returns})
+    provenance = {"demos": {"expert_return_mean": DEMO}}
+    return Run(__import__("pathlib").Path(f"{algo}__{TASK}__s{seed}"),
+               {"env_id": TASK, "algo": algo, "seed": seed}, curve, provenance)
+
+
+def test_normalised_scores_put_random_at_0_and_the_demonstrations_at_1():
+    np.testing.assert_allclose(normalised(np.array([-10.0, 40.0, 90.0]), -10.0, 90.0),
+                               [0.0, 0.5, 1.0])
+    with pytest.raises(HarnessError, match="not above random"):
+        normalised(np.array([1.0]), 5.0, 5.0)
+
+
+def test_compare_judges_drl_eg_against_each_method_per_task():
+    runs = [_run("drl-eg", s, [0, 50 + s, 90 + s]) for s in range(4)]
+    runs += [_run("sac", s, [0, 0, s * 0.1]) for s in range(4)]  # learns nothing
+    runs += [_run("ibrl", s, [0, 80, 90 + s]) for s in range(4)]  # as good, earlier
+    result = compare(runs, {TASK: (1000, 500)}, np.random.default_rng(0))
+    verdicts = {v["other"]: v["verdict"] for v in result["verdicts"]}
+    assert verdicts == {"sac": "DRL-EG better", "ibrl": "inconclusive"}
+    random = random_return(TASK)
+    assert result["reference"][TASK] == {"random": random, "demo": DEMO}
+    sac = next(c for c in result["cells"] if c["algo"] == "sac")
+    assert sac["final_normalised"] == pytest.approx((0.15 - random) / (DEMO - random))
+    aggregate = result["aggregate"]
+    assert aggregate["runs_per_task"] == 4 and aggregate["tasks"] == [TASK]
+    # the sample-efficiency curve sees IBRL ahead halfway through, DRL-EG's IQM at the end
+    value = dict(zip(CURVE_FRACTIONS, aggregate["efficiency"]["ibrl"][0]))
+    assert value[0.5] > dict(zip(CURVE_FRACTIONS, aggregate["efficiency"]["drl-eg"][0]))[0.5]
+    improvement = {p["other"]: p["value"] for p in aggregate["improvement"]}
+    assert improvement["sac"] == 1.0 and 0.0 < improvement["ibrl"] < 1.0
+
+
+@pytest.mark.slow
+def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path):
+    store, out = tmp_path / "runs", tmp_path / "rlfd"
+    args = ["compare-rlfd", "--profile", "smoke", "--seeds", "2", "--store", str(store),
+            "--out", str(out), "--device", "cpu"]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert {c["algo"] for c in summary["cells"]} == {"sac", "drl-eg", "ibrl", "rlpd", "jsrl",
+                                                     "ddpgfd"}
+    assert all(c["n"] == 2 for c in summary["cells"]) and not summary["skipped"]
+    assert len(summary["verdicts"]) == 5
+    html = (out / "index.html").read_text()
+    assert 'id="smoke-warning"' in html and "data:image/png;base64," in html
+    from replicate.rlfd import rebuild_rlfd
+
+    rebuilt = rebuild_rlfd("smoke", store, tmp_path / "again")
+    again = json.loads((rebuilt.parent / "summary.json").read_text())
+    assert again["cells"] == summary["cells"] and again["verdicts"] == summary["verdicts"]
