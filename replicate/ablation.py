@@ -70,6 +70,33 @@ def default_thresholds(profile: str, env_id: str) -> list[float]:
     return [m * spacing for m in SPACING_MULTIPLES] + [ALWAYS]
 
 
+def admitted_share(env_id: str, thresholds: list[float], episodes: int = 5, seed: int = 0,
+                   max_states: int = 5000) -> list[float]:
+    """For each T2, the share of the states that uniformly random actions visit (``episodes``
+    seeded episodes, at most ``max_states`` states) lying within T2 of a demonstration state:
+    how much an untrained agent would be guided, before any training."""
+    from scipy.spatial import cKDTree
+
+    from envs import make_env
+    from replicate.demos import default_demo_path, load_demos
+
+    demos = load_demos(default_demo_path(env_id), env_id)
+    env = make_env(env_id, seed=seed)
+    env.action_space.seed(seed)
+    states = []
+    for _ in range(episodes):
+        obs, _ = env.reset()
+        done = False
+        while not done and len(states) < max_states:
+            states.append(obs)
+            obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            done = terminated or truncated
+    env.close()
+    distances, _ = cKDTree(demos.observations.astype(np.float64)).query(
+        np.asarray(states, dtype=np.float64))
+    return [float(np.mean(distances <= t)) if t > 0 else 0.0 for t in thresholds]
+
+
 def ablation_report_name(env_id: str) -> str:
     """``ablate-threshold`` for MountainCar (the first sweep), ``ablate-threshold-<env>``
     for the others."""
@@ -326,11 +353,12 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
                 "high": float(est.high[0]), "n": len(values)}
 
     spacing = threshold_spacing(env_id)
+    admitted = admitted_share(env_id, [c.threshold for c in cells])
     rows = [{"threshold": c.threshold, "sigma": c.sigma,
-             "label": threshold_label(c.threshold, spacing),
+             "label": threshold_label(c.threshold, spacing), "admitted_random_share": share,
              "final": estimate([r.final_return for r in c.runs]),
              "auc": estimate([area_under_curve(r) for r in c.runs]),
-             "runs": [r.path.name for r in c.runs]} for c in cells]
+             "runs": [r.path.name for r in c.runs]} for c, share in zip(cells, admitted)]
     sac_runs = sac_outcome.runs
     sac_final = float(np.mean([r.final_return for r in sac_runs])) if sac_runs else None
     sac_auc = float(np.mean([area_under_curve(r) for r in sac_runs])) if sac_runs else None

@@ -79,6 +79,8 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
     assert summary["spacing"] == spacing
     assert [r["label"].split(" ")[0] for r in summary["rows"]] == [
         "1x", "4x", "16x", "64x", "always"]
+    shares = [r["admitted_random_share"] for r in summary["rows"]]  # random play's states
+    assert shares == sorted(shares) and shares[-1] == 1.0 and shares[0] < 1.0
     html = (out / "index.html").read_text()
     assert 'id="curves"' in html and html.count("data:image/png;base64,") == 2
     # the guided share grows with T2; an untrained policy keeps the gate open, so always-guide
