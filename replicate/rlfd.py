@@ -25,8 +25,8 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults, run_grid,
-                                   stored_runs)
+from replicate.experiments import (T2_WAIT_REASON, algorithm_overrides, drl_eg_env_defaults,
+                                   run_grid, stored_runs, waits_for_t2_rule)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
@@ -281,6 +281,9 @@ def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Pat
     """Train what the comparison lacks, then write its report; return the report's path."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
+    waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
+    specs = [s for s in specs if s not in waiting]
+    skipped += sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
     outcome = run_grid(specs, store, workers, checkpoint_interval, device=device, batch=batch)
