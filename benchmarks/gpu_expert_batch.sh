@@ -8,7 +8,11 @@ set -u
 env_id=$1 seeds=$2 minutes=$3 out=$4 device=${5:-cuda}
 name=${env_id//\//__}
 root=$(mktemp -d)
-pack() { tar czf "$out/.expert-$name.tgz" -C "$root" . && mv "$out/.expert-$name.tgz" "$out/expert-$name.tgz"; }
+pack() {  # each pack writes its own temporary file: a late one cannot corrupt another
+    local tmp
+    tmp=$(mktemp -p "$out" .pack.XXXXXX)
+    tar czf "$tmp" -C "$root" . && mv "$tmp" "$out/expert-$name.tgz"
+}
 # a pack a minute, so that a command cut short by the device's time still returns the best so far
 (while sleep 60; do pack; done) & packer=$!
 python3 -m replicate expert --env "$env_id" --algo sac-twin-q --steps 1000000 \
@@ -16,4 +20,5 @@ python3 -m replicate expert --env "$env_id" --algo sac-twin-q --steps 1000000 \
     > "$out/expert-$name.log" 2>&1
 echo "exit status $?" >> "$out/expert-$name.log"
 kill $packer
+wait $packer 2>/dev/null
 pack

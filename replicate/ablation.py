@@ -408,7 +408,10 @@ def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"
             key = (spec["hyperparameters"]["guide_threshold"],
                    spec["hyperparameters"]["guide_noise_std"])
             points[key] = max(points.get(key, 0), spec["seed"] + 1)
-    n_seeds = max(points.values(), default=0)
+    # as many seeds as the sweep trains: Fig. 3's DRL-EG runs share the 1x point's spec on
+    # more seeds, and would otherwise give that point more seeds than the others
+    sweep_seeds = MUJOCO_ABLATION_SEEDS if env_id in MUJOCO_ABLATION_ENVS else chosen.seeds
+    n_seeds = min(max(points.values(), default=0), sweep_seeds)
     cells = [Cell(t, s, stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
              for t, s in sorted(points)]
     cells = [c for c in cells if c.runs]  # runs of other settings than the sweep's own

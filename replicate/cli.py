@@ -182,8 +182,8 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="env steps between checkpoints of each run (0: none); an "
                            "interrupted figure resumes its unfinished runs from them")
     fig3.add_argument("--out", type=Path, default=None,
-                      help="report directory (default: reports/fig3, or reports/smoke/fig3 "
-                           "for the smoke profile)")
+                      help="report directory (default: reports/fig3 for quick, "
+                           "reports/<profile>/fig3 otherwise)")
 
     fig4 = sub.add_parser(
         "fig4", help="train what Fig. 4 needs (paired SAC and DRL-EG) and write its report",
@@ -203,7 +203,8 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
     fig4.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     fig4.add_argument("--out", type=Path, default=None,
-                      help="report directory (default: reports/fig4)")
+                      help="report directory (default: reports/fig4 for quick, "
+                           "reports/<profile>/fig4 otherwise)")
 
     ablate = sub.add_parser(
         "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
@@ -234,7 +235,8 @@ def _build_parser() -> argparse.ArgumentParser:
                              "state spacing, and always; 3 seeds)")
     ablate.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     ablate.add_argument("--out", type=Path, default=None,
-                        help="report directory (default: reports/ablate-threshold)")
+                        help="report directory (default: reports/ablate-threshold[-<env>] "
+                             "for quick, under reports/<profile>/ otherwise)")
 
     rlfd = sub.add_parser(
         "compare-rlfd", help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
@@ -250,7 +252,9 @@ def _build_parser() -> argparse.ArgumentParser:
     rlfd.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
     rlfd.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    rlfd.add_argument("--out", type=Path, default=None, help="report directory")
+    rlfd.add_argument("--out", type=Path, default=None,
+                      help="report directory (default: reports/rlfd for quick, "
+                           "reports/<profile>/rlfd otherwise)")
     rlfd.add_argument("--checkpoint-interval", type=int, default=10_000,
                       help="env steps between checkpoints of a run")
     _add_device_argument(rlfd, grid=True)
@@ -269,8 +273,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="number of seeds (default: the profile's)")
     report.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     report.add_argument("--out", type=Path, default=None,
-                        help="parent directory of the reports (default: reports/, or "
-                             "reports/smoke/ for the smoke profile)")
+                        help="parent directory of the reports (default: reports/ for quick, "
+                             "reports/<profile>/ otherwise; with several profiles, "
+                             "<out>/<profile>/<name>)")
 
     table1 = sub.add_parser(
         "table1", help="write Table 1 (env dims, paper beside harness, demonstrations)",
@@ -437,22 +442,33 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     profiles = [args.profile] if args.profile else [p for p in PROFILE_NAMES if p != "smoke"]
 
-    def target(profile: str, name: str) -> Path:
-        if args.out is None:
-            return report_dir(profile, name)
-        return args.out / profile / name if len(profiles) > 1 else args.out / name
+    def target(profile: str, name: str) -> Path | None:
+        """Where to write; None to leave out: without --profile, only the default profile's
+        reports and those already written (committed) are rebuilt, since profiles share runs
+        (reduced's MountainCar runs are quick's) and would otherwise each get a report."""
+        if args.out is not None:
+            return args.out / profile / name if len(profiles) > 1 else args.out / name
+        path = report_dir(profile, name)
+        keep = args.profile or profile == "quick" or (path / "summary.json").is_file()
+        return path if keep else None
+
+    def rebuild(profile: str, name: str, build) -> Path | None:
+        path = target(profile, name)
+        return build(path) if path is not None else None
 
     for profile in profiles:
         rebuilt = {
-            "Fig. 3": rebuild_figure3(profile=profile, seeds=args.seeds, store=args.store,
-                                      out_dir=target(profile, "fig3")),
-            "Fig. 4": (rebuild_figure4(profile, FIG4_ENV, None, args.store,
-                                       target(profile, "fig4"))
-                       if default_demo_path(FIG4_ENV).is_file() else None),
-            "DRL-EG against IBRL, RLPD, JSRL": rebuild_rlfd(profile, args.store,
-                                                            target(profile, "rlfd")),
-            **{f"threshold ablation on {env_id}": rebuild_threshold_ablation(
-                profile, args.store, target(profile, ablation_report_name(env_id)), env_id)
+            "Fig. 3": rebuild(profile, "fig3", lambda out: rebuild_figure3(
+                profile=profile, seeds=args.seeds, store=args.store, out_dir=out)),
+            "Fig. 4": rebuild(profile, "fig4", lambda out: rebuild_figure4(
+                profile, FIG4_ENV, None, args.store, out)
+                if default_demo_path(FIG4_ENV).is_file() else None),
+            "DRL-EG against IBRL, RLPD, JSRL": rebuild(
+                profile, "rlfd", lambda out: rebuild_rlfd(profile, args.store, out)),
+            **{f"threshold ablation on {env_id}": rebuild(
+                profile, ablation_report_name(env_id),
+                lambda out, env_id=env_id: rebuild_threshold_ablation(profile, args.store,
+                                                                      out, env_id))
                for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS)}}
         for name, path in rebuilt.items():
             print(f"report: {path}" if path else

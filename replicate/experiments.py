@@ -477,7 +477,7 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
             runs.append(load_run(directory))
         else:
             skipped.append((spec.env_id, spec.algo,
-                            f"seed {spec.seed} not in {store} yet (run `nox -s replicate-fig3 "
+                            f"seed {spec.seed} not in the store yet (run `nox -s replicate-fig3 "
                             f"-- --profile {profile}` to train it)"))
     if not runs:
         return None

@@ -131,9 +131,13 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
     algos = [a for a in RLFD_ALGORITHMS if any(x == a for _, x in by_cell)]
     reference = {}
     for task in tasks:
-        demo = next(r.provenance["demos"]["expert_return_mean"]
-                    for (e, _), members in by_cell.items() if e == task
-                    for r in members if r.provenance.get("demos"))
+        demo = next((r.provenance["demos"]["expert_return_mean"]
+                     for (e, _), members in by_cell.items() if e == task
+                     for r in members if r.provenance.get("demos")), None)
+        if demo is None:  # only methods without demonstrations (SAC) have runs here yet
+            from replicate.demos import default_demo_path, load_demos
+
+            demo = load_demos(default_demo_path(task), task).mean_return
         reference[task] = {"random": random_return(task), "demo": float(demo)}
 
     def scores(task: str, algo: str) -> np.ndarray:
@@ -307,7 +311,7 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     have = {r.path.name for r in runs}
     from replicate.runner import prepare
 
-    skipped += [(s.env_id, s.algo, f"seed {s.seed} not in {store} yet") for s in specs
+    skipped += [(s.env_id, s.algo, f"seed {s.seed} not in the store yet") for s in specs
                 if prepare(s).run_id not in have]
     return write_rlfd_report(GridOutcome(runs, [], None, skipped), chosen,
                              Path(out_dir or report_dir(profile, "rlfd")))
