@@ -1,3 +1,4 @@
+import pytest
 import re
 
 from envs import ENV_SPECS
@@ -19,3 +20,16 @@ def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
     demo_section = html[html.index('id="demonstrations"'):]
     assert demo_section.count("<tr><td><code>") == len(ENV_SPECS)  # every env has a row
     assert "http://" not in html and "https://" not in html
+
+
+def test_table1_states_each_mujoco_expert_against_its_target():
+    from replicate.table1 import EXPERT_TARGETS, table1_rows
+
+    rows = {r["env_id"]: r for r in table1_rows()}
+    for env_id, target in EXPERT_TARGETS.items():
+        row = rows[env_id]
+        mean = row["demo"]["expert_return_mean"]
+        assert row["target"]["value"] == target
+        assert row["target"]["met"] == (mean >= target)
+        assert row["target"]["short_by"] == pytest.approx(max(0.0, 1 - mean / target))
+    assert rows["MountainCarContinuous-v0"]["target"] is None
