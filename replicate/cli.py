@@ -435,6 +435,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
                                     rebuild_threshold_ablation)
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
+    from replicate.report import runs_missing_for
     from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
 
@@ -452,27 +453,41 @@ def _cmd_report(args: argparse.Namespace) -> int:
         keep = args.profile or profile == "quick" or (path / "summary.json").is_file()
         return path if keep else None
 
-    def rebuild(profile: str, name: str, build) -> Path | None:
+    def rebuild(profile: str, name: str, build) -> str:
         path = target(profile, name)
-        return build(path) if path is not None else None
+        if path is None:
+            not_written.add(profile)
+            return ""
+        missing = runs_missing_for(path, args.store)
+        if missing:  # a report is never replaced by one built from fewer of its runs
+            return (f"{path}: left as it is; {len(missing)} of the runs it names are not in "
+                    f"{args.store} (e.g. {missing[0]})")
+        written = build(path)
+        if written is None:
+            return f"{path}: no runs of the {profile} profile in {args.store}; left as it is"
+        return f"report: {written}"
+
+    not_written: set[str] = set()
+
+    def report_line(line: str) -> None:
+        if line:
+            print(line)
 
     for profile in profiles:
-        rebuilt = {
-            "Fig. 3": rebuild(profile, "fig3", lambda out: rebuild_figure3(
-                profile=profile, seeds=args.seeds, store=args.store, out_dir=out)),
-            "Fig. 4": rebuild(profile, "fig4", lambda out: rebuild_figure4(
-                profile, FIG4_ENV, None, args.store, out)
-                if default_demo_path(FIG4_ENV).is_file() else None),
-            "DRL-EG against IBRL, RLPD, JSRL": rebuild(
-                profile, "rlfd", lambda out: rebuild_rlfd(profile, args.store, out)),
-            **{f"threshold ablation on {env_id}": rebuild(
-                profile, ablation_report_name(env_id),
-                lambda out, env_id=env_id: rebuild_threshold_ablation(profile, args.store,
-                                                                      out, env_id))
-               for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS)}}
-        for name, path in rebuilt.items():
-            print(f"report: {path}" if path else
-                  f"{name}: no runs of the {profile} profile in {args.store}; left as it is")
+        report_line(rebuild(profile, "fig3", lambda out: rebuild_figure3(
+            profile=profile, seeds=args.seeds, store=args.store, out_dir=out)))
+        report_line(rebuild(profile, "fig4", lambda out: rebuild_figure4(
+            profile, FIG4_ENV, None, args.store, out)
+            if default_demo_path(FIG4_ENV).is_file() else None))
+        report_line(rebuild(profile, "rlfd", lambda out: rebuild_rlfd(profile, args.store, out)))
+        for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS):
+            report_line(rebuild(profile, ablation_report_name(env_id),
+                          lambda out: rebuild_threshold_ablation(profile, args.store, out,
+                                                                 env_id)))
+    if not_written:
+        names = " or ".join(sorted(not_written))
+        print(f"reports of the {names} profile that were never written are left out "
+              f"(they would share the quick profile's runs); pass --profile to write them")
     table1 = write_table1_report(args.out / "table1" if args.out else Path("reports/table1"))
     print(f"report: {table1}")
     return 0

@@ -161,6 +161,24 @@ def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int]
     return rows
 
 
+def summary_run_ids(summary: dict[str, Any]) -> list[str]:
+    """The run directories a report's ``summary.json`` names, whatever the report."""
+    if "cells" in summary:  # the comparison with IBRL, RLPD, JSRL
+        return [run for cell in summary["cells"] for run in cell["runs"]]
+    if "runs" in summary:  # Fig. 3
+        return [r["run_id"] for r in summary["runs"]]
+    return [run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
+
+
+def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
+    """The runs an existing report names that the store lacks: rebuilding it would lose them."""
+    summary_file = Path(report_dir) / "summary.json"
+    if not summary_file.is_file():
+        return []
+    summary = json.loads(summary_file.read_text())
+    return [r for r in summary_run_ids(summary) if not (Path(store) / r / "curve.csv").is_file()]
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
