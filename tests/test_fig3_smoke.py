@@ -59,7 +59,7 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
                  "--out", str(out)]) == 0
     assert (out / "fig3" / "index.html").read_text() == "a committed report"
     printed = capsys.readouterr().out
-    assert "Fig. 3: no runs of the smoke profile" in printed and "left as it is" in printed
+    assert "fig3: no runs of the smoke profile" in printed and "left as it is" in printed
     assert (out / "table1" / "index.html").is_file()  # Table 1 needs no runs
 
 
