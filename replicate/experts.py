@@ -71,12 +71,8 @@ def work_dir_for(env_id: str, root: Path) -> Path:
     return Path(root) / _file_name(env_id)
 
 
-def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: int = 0,
-                 eval_interval: int = 10_000, eval_episodes: int = 5,
-                 checkpoint_interval: int = 10_000,
-                 on_steps: Callable[[int], None] = lambda n: None,
-                 algo: str | None = None, threads: int = 1, device: str = "auto") -> Path:
-    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
+def _checked_request(env_id: str, steps: int, algo: str | None) -> str:
+    """The trainer of ``env_id``'s expert, after refusing a request that cannot train one."""
     env_spec(env_id)
     algo = algo or expert_algo_for(env_id)
     if algo not in EXPERT_ALGOS:
@@ -87,6 +83,16 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
                            f"train that one: --env {EXPERT_SOURCE[env_id]}")
     if steps <= 0:
         raise HarnessError(f"step count must be positive, got {steps}", "pass --steps N, N > 0")
+    return algo
+
+
+def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: int = 0,
+                 eval_interval: int = 10_000, eval_episodes: int = 5,
+                 checkpoint_interval: int = 10_000,
+                 on_steps: Callable[[int], None] = lambda n: None,
+                 algo: str | None = None, threads: int = 1, device: str = "auto") -> Path:
+    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
+    algo = _checked_request(env_id, steps, algo)
     work = work_dir_for(env_id, root)
     work.mkdir(parents=True, exist_ok=True)
     progress_file = work / "progress.json"
@@ -170,16 +176,7 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
     from baselines.batched import BatchContext
     from baselines.registry import batched_trainer
 
-    env_spec(env_id)
-    algo = algo or expert_algo_for(env_id)
-    if algo not in EXPERT_ALGOS:
-        raise HarnessError(f"experts are trained by {' or '.join(EXPERT_ALGOS)}, not {algo}",
-                           f"pass --algo {EXPERT_ALGOS[0]} or --algo {EXPERT_ALGOS[1]}")
-    if env_id in EXPERT_SOURCE:
-        raise HarnessError(f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
-                           f"train that one: --env {EXPERT_SOURCE[env_id]}")
-    if steps <= 0:
-        raise HarnessError(f"step count must be positive, got {steps}", "pass --steps N, N > 0")
+    algo = _checked_request(env_id, steps, algo)
     if len(set(seeds)) != len(seeds) or len(seeds) < 2:
         raise HarnessError(f"an expert batch needs two or more distinct seeds, got {seeds}",
                            "pass --seeds 1-8 (or --seed N for one run)")

@@ -71,31 +71,48 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
     return buffer.getvalue()
 
 
+def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], palette: dict, xlabel: str) -> None:
+    """One row per algorithm: its IQM with the CI as a horizontal bar."""
+    algos = list(iqm)
+    for row, algo in enumerate(algos):
+        value, low, high = iqm[algo]
+        ax.errorbar([value], [row], xerr=[[value - low], [high - value]], fmt="o",
+                    color=palette[algo], capsize=4)
+    ax.set_yticks(range(len(algos)), algos)
+    ax.set_xlabel(xlabel)
+
+
+def draw_profiles(ax, taus: np.ndarray,
+                  profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  palette: dict, xlabel: str) -> None:
+    """Performance profiles (fraction of runs above each score) with CI bands."""
+    for algo, (value, low, high) in profiles.items():
+        ax.plot(taus, value, color=palette[algo], label=algo, linewidth=1.8)
+        ax.fill_between(taus, low, high, color=palette[algo], alpha=0.2, linewidth=0)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("fraction of runs above tau")
+
+
+def png_bytes(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
 def aggregate_png(iqm: dict[str, tuple[float, float, float]], taus: np.ndarray,
                   profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bytes:
     """Left: IQM of normalised final scores with CIs. Right: performance profiles (fraction
     of runs above each normalised score) with CI bands."""
     sns.set_theme(style="whitegrid", context="notebook")
-    algos = list(iqm)
-    palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
+    palette = dict(zip(iqm, sns.color_palette("colorblind", len(iqm)), strict=True))
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.6))
-    for row, algo in enumerate(algos):
-        value, low, high = iqm[algo]
-        left.errorbar([value], [row], xerr=[[value - low], [high - value]], fmt="o",
-                      color=palette[algo], capsize=4)
-    left.set_yticks(range(len(algos)), algos)
-    left.set_xlabel("IQM of final score / demonstrations' return")
-    for algo, (value, low, high) in profiles.items():
-        right.plot(taus, value, color=palette[algo], label=algo, linewidth=1.8)
-        right.fill_between(taus, low, high, color=palette[algo], alpha=0.2, linewidth=0)
-    right.set_xlabel("score tau (final return / demonstrations' return)")
-    right.set_ylabel("fraction of runs above tau")
+    draw_iqm(left, iqm, palette, "IQM of final score / demonstrations' return")
+    draw_profiles(right, taus, profiles, palette,
+                  "score tau (final return / demonstrations' return)")
     right.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, np.ndarray]]]],

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import io
 import json
 from datetime import datetime, timezone
 from pathlib import Path
@@ -204,28 +203,20 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
 
 
 def _figure(aggregate: dict[str, Any]) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
+    """IQM with CIs, performance profiles, and the IQM against the share of the budget."""
     import matplotlib.pyplot as plt
     import seaborn as sns
+
+    from replicate.figures import draw_iqm, draw_profiles, png_bytes
 
     sns.set_theme(style="whitegrid", context="notebook")
     algos = list(aggregate["iqm"])
     palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
     fig, (left, middle, right) = plt.subplots(1, 3, figsize=(15, 3.8))
-    for row, algo in enumerate(algos):
-        value, low, high = aggregate["iqm"][algo]
-        left.errorbar([value], [row], xerr=[[value - low], [high - value]], fmt="o",
-                      color=palette[algo], capsize=4)
-    left.set_yticks(range(len(algos)), algos)
-    left.set_xlabel("IQM of final normalised score")
-    for algo, (value, low, high) in aggregate["profiles"].items():
-        middle.plot(aggregate["taus"], value, color=palette[algo], label=algo)
-        middle.fill_between(aggregate["taus"], low, high, color=palette[algo], alpha=0.2,
-                            linewidth=0)
-    middle.set_xlabel("normalised score tau")
-    middle.set_ylabel("fraction of runs above tau")
+    draw_iqm(left, {a: tuple(v) for a, v in aggregate["iqm"].items()}, palette,
+             "IQM of final normalised score")
+    draw_profiles(middle, aggregate["taus"], aggregate["profiles"], palette,
+                  "normalised score tau")
     for algo, (value, low, high) in aggregate["efficiency"].items():
         right.plot(CURVE_FRACTIONS, value, color=palette[algo], label=algo)
         right.fill_between(CURVE_FRACTIONS, low, high, color=palette[algo], alpha=0.2,
@@ -234,10 +225,7 @@ def _figure(aggregate: dict[str, Any]) -> bytes:
     right.set_ylabel("IQM normalised score")
     right.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> Path:
