@@ -118,3 +118,14 @@ def test_listing_commands(capsys):
     assert code == 0 and "drl-eg" in out and "guide_threshold" in out
     code, out, _ = run_cli(["envs"], capsys)
     assert code == 0 and "Ant-v2 (111/8)" in out
+
+
+def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeypatch):
+    from replicate.cli import PROFILE_NAMES, default_store
+    from replicate.profiles import PROFILES
+
+    assert PROFILE_NAMES == tuple(PROFILES)
+    monkeypatch.delenv("REPLICATE_STORE", raising=False)
+    assert str(default_store("smoke")) == "runs-smoke" and str(default_store("quick")) == "runs"
+    monkeypatch.setenv("REPLICATE_STORE", "/elsewhere")
+    assert str(default_store("smoke")) == "/elsewhere"
