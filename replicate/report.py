@@ -79,6 +79,22 @@ def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
     return groups
 
 
+def drl_eg_improvement(scores: dict[str, np.ndarray], algos: list[str],
+                       rng: np.random.Generator) -> list[dict[str, Any]]:
+    """P(DRL-EG > each other algorithm) on (runs, tasks) scores, with stratified-bootstrap
+    CIs; empty without DRL-EG."""
+    if "drl-eg" not in scores:
+        return []
+    rows = []
+    for other in algos:
+        if other != "drl-eg":
+            est = stratified_bootstrap_ci(probability_of_improvement,
+                                          (scores["drl-eg"], scores[other]), rng)
+            rows.append({"other": other, "value": float(est.value), "low": float(est.low),
+                         "high": float(est.high)})
+    return rows
+
+
 def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
                       rng: np.random.Generator) -> dict[str, Any] | None:
     """IQM, performance profiles and probability of improvement over the envs that have
@@ -95,19 +111,13 @@ def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[s
     scores = {a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks],
                           axis=1) for a in algos}
     taus = np.linspace(0.0, 1.2, 49)
-    iqm, profiles, improvement = {}, {}, []
+    iqm, profiles = {}, {}
     for algo in algos:
         est = stratified_bootstrap_ci(interquartile_mean, (scores[algo],), rng)
         iqm[algo] = (float(est.value), float(est.low), float(est.high))
         prof = stratified_bootstrap_ci(lambda s: score_profile(s, taus), (scores[algo],), rng)
         profiles[algo] = (prof.value, prof.low, prof.high)
-    if "drl-eg" in scores:
-        for other in algos:
-            if other != "drl-eg":
-                est = stratified_bootstrap_ci(probability_of_improvement,
-                                              (scores["drl-eg"], scores[other]), rng)
-                improvement.append({"other": other, "value": float(est.value),
-                                    "low": float(est.low), "high": float(est.high)})
+    improvement = drl_eg_improvement(scores, algos, rng)
     png = aggregate_png(iqm, taus, profiles)
     return {"tasks": tasks, "runs_per_task": runs, "iqm": iqm, "improvement": improvement,
             "png_b64": base64.b64encode(png).decode()}

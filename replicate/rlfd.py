@@ -27,11 +27,11 @@ from replicate.errors import HarnessError
 from replicate.experiments import (T2_WAIT_REASON, algorithm_overrides, drl_eg_env_defaults,
                                    run_grid, stored_runs, waits_for_t2_rule)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
+from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
 from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
-                             probability_of_improvement, score_profile,
-                             stratified_bootstrap_ci)
+                             score_profile, stratified_bootstrap_ci)
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"
@@ -172,7 +172,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
         if n >= 2:
             matrix = {a: np.stack([scores(t, a)[:n] for t in full], axis=1) for a in algos}
             taus = np.linspace(0.0, 1.5, 61)
-            iqm, profiles, improvement, efficiency = {}, {}, [], {}
+            iqm, profiles, efficiency = {}, {}, {}
             for algo in algos:
                 est = stratified_bootstrap_ci(interquartile_mean, (matrix[algo],), rng)
                 iqm[algo] = [float(est.value), float(est.low), float(est.high)]
@@ -188,13 +188,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
                           for k in range(len(CURVE_FRACTIONS))]
                 efficiency[algo] = tuple(np.array([float(getattr(p, part)) for p in points])
                                          for part in ("value", "low", "high"))
-            if "drl-eg" in matrix:
-                for other in algos:
-                    if other != "drl-eg":
-                        est = stratified_bootstrap_ci(probability_of_improvement,
-                                                      (matrix["drl-eg"], matrix[other]), rng)
-                        improvement.append({"other": other, "value": float(est.value),
-                                            "low": float(est.low), "high": float(est.high)})
+            improvement = drl_eg_improvement(matrix, algos, rng)
             aggregate = {"tasks": full, "runs_per_task": n, "iqm": iqm,
                          "improvement": improvement, "taus": taus, "profiles": profiles,
                          "efficiency": efficiency}
