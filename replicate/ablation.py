@@ -29,15 +29,15 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (GridOutcome, Profile, algorithm_overrides,
-                                   drl_eg_env_defaults, get_profile, report_dir, run_grid,
-                                   stored_runs)
+from replicate.experiments import (ALWAYS_GUIDE, DEFAULT_GUIDE_NOISE_STD, GridOutcome, Profile,
+                                   algorithm_overrides, drl_eg_env_defaults, get_profile,
+                                   report_dir, run_grid, stored_runs)
 from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
-from replicate.stats import bootstrap_mean
+from replicate.stats import bootstrap_mean, stratified_bootstrap_ci
 
-ALWAYS = 1e6  # a threshold no distance reaches: every state is guided while the gate is open
+ALWAYS = ALWAYS_GUIDE
 THRESHOLDS: dict[str, list[float]] = {  # MountainCar's grid, absolute values
     "smoke": [0.0, 0.05, ALWAYS],
     "quick": [0.0, 0.01, 0.05, 0.2, ALWAYS],
@@ -53,6 +53,16 @@ ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome 
 MUJOCO_ABLATION_ENVS = ("Ant-v5", "Walker2d-v5")
 SPACING_MULTIPLES = (1, 4, 16, 64)
 MUJOCO_ABLATION_SEEDS = 3
+T2_SETTINGS = tuple(f"{m}x" for m in SPACING_MULTIPLES) + ("always",)
+# Written before any reduced-budget ablation run had finished, and not to be changed after.
+T2_RULE_CRITERION = (
+    "For each T2 setting (1, 4, 16 and 64 times the env's demonstration-state spacing, and "
+    "always), the gain of DRL-EG over SAC in area under the curve, seed by seed (the same "
+    "seeds), divided by R_demo - R_random of the env (the demonstrations' mean return less "
+    "that of uniformly random actions); averaged over the 3 seeds, then over Ant-v5 and "
+    "Walker2d-v5 with equal weight. The MuJoCo rule is the setting with the largest mean "
+    "gain, a tie going to the smaller T2, whatever the sign of that gain; it is chosen only "
+    "when every setting has its 3 seeds on both envs.")
 
 
 def threshold_spacing(env_id: str) -> float | None:
@@ -138,6 +148,67 @@ def sac_specs(profile: Profile, env_id: str, seeds: int) -> list[RunSpec]:
     hyper = algorithm_overrides("sac", profile.overrides)
     return [RunSpec("sac", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
                     profile.eval_episodes, hyper) for seed in range(seeds)]
+
+
+def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, list[float]]]:
+    """For each setting of ``T2_SETTINGS`` and each MuJoCo ablation env, the normalised
+    area-under-the-curve gains of DRL-EG over SAC per seed (``T2_RULE_CRITERION``), from
+    the stored runs of the sweep's seeds."""
+    from replicate.demos import default_demo_path, load_demos
+    from replicate.rlfd import random_return
+
+    chosen = get_profile(profile)
+    gains: dict[str, dict[str, list[float]]] = {setting: {} for setting in T2_SETTINGS}
+    for env_id in MUJOCO_ABLATION_ENVS:
+        if env_id not in chosen.steps or not default_demo_path(env_id).is_file():
+            continue
+        sac = {r.spec["seed"]: r for r in stored_runs(
+            sac_specs(chosen, env_id, MUJOCO_ABLATION_SEEDS), store)}
+        if not sac:
+            continue
+        scale = load_demos(default_demo_path(env_id), env_id).mean_return - random_return(env_id)
+        for setting, threshold in zip(T2_SETTINGS, default_thresholds(profile, env_id)):
+            runs = stored_runs(ablation_specs(chosen, env_id, threshold,
+                                              DEFAULT_GUIDE_NOISE_STD, MUJOCO_ABLATION_SEEDS),
+                               store)
+            paired = sorted((r.spec["seed"], r) for r in runs if r.spec["seed"] in sac)
+            if paired:
+                gains[setting][env_id] = [
+                    (area_under_curve(r) - area_under_curve(sac[seed])) / scale
+                    for seed, r in paired]
+    return gains
+
+
+def choose_t2_rule(gains: dict[str, dict[str, list[float]]], rng: np.random.Generator,
+                   envs: tuple[str, ...] = MUJOCO_ABLATION_ENVS,
+                   seeds: int = MUJOCO_ABLATION_SEEDS) -> dict[str, Any]:
+    """``T2_RULE_CRITERION`` applied to ``gains`` (``t2_rule_gains``): per setting, the gain
+    on each env and their mean with a stratified-bootstrap CI (seeds resampled within each
+    env); the leader so far, and the choice once every setting has ``seeds`` seeds on every
+    env (None before)."""
+    rows = []
+    for setting in T2_SETTINGS:
+        per_env = gains.get(setting, {})
+        row: dict[str, Any] = {
+            "setting": setting,
+            "per_env": {env: {"gain": float(np.mean(per_env[env])), "n": len(per_env[env])}
+                        for env in envs if per_env.get(env)},
+            "gain": float("nan"), "low": float("nan"), "high": float("nan"),
+            "complete": all(len(per_env.get(env, [])) >= seeds for env in envs)}
+        if len(row["per_env"]) == len(envs):
+            row["gain"] = float(np.mean([row["per_env"][env]["gain"] for env in envs]))
+        if row["complete"]:
+            matrix = np.array([per_env[env][:seeds] for env in envs]).T  # (seeds, envs)
+            est = stratified_bootstrap_ci(lambda m: m.mean(axis=0).mean(), (matrix,), rng)
+            row["gain"], row["low"], row["high"] = (float(est.value), float(est.low),
+                                                    float(est.high))
+        rows.append(row)
+    scored = [r for r in rows if not math.isnan(r["gain"])]
+    # max() keeps the first of equal values: the smaller T2 wins a tie
+    leader = max(scored, key=lambda r: r["gain"])["setting"] if scored else None
+    complete = all(r["complete"] for r in rows)
+    return {"criterion": T2_RULE_CRITERION, "envs": list(envs), "seeds": seeds, "rows": rows,
+            "complete": complete, "leader": leader, "choice": leader if complete else None}
 
 
 def area_under_curve(run: Run) -> float:
@@ -240,7 +311,7 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
             specs = ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
             cells.append(Cell(threshold, sigma, stored_runs(specs, store)))
     return write_ablation_report(cells, sac_outcome, chosen, env_id, study_name, storage,
-                                 failed, out_dir)
+                                 failed, out_dir, t2_rule_standing(env_id, store, profile))
 
 
 def zero_threshold_equals_sac(cells: list[Cell], sac_runs: list[Run]) -> dict[str, Any] | None:
@@ -337,10 +408,19 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     return buffer.getvalue()
 
 
+def t2_rule_standing(env_id: str, store: Path, profile: str) -> dict[str, Any] | None:
+    """Where the MuJoCo T2 rule stands on the store's runs (None for MountainCar)."""
+    if env_id not in MUJOCO_ABLATION_ENVS:
+        return None
+    return choose_t2_rule(t2_rule_gains(Path(store), profile),
+                          np.random.default_rng(REPORT_SEED + 1))
+
+
 def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
                           env_id: str, study_name: str, storage: str,
-                          failed: list[tuple[str, str]], out_dir: Path) -> Path:
-    from replicate import provenance
+                          failed: list[tuple[str, str]], out_dir: Path,
+                          t2_rule: dict[str, Any] | None = None) -> Path:
+    from replicate import experiments, provenance
     from replicate.report import _atomic_write
 
     rng = np.random.default_rng(REPORT_SEED)
@@ -376,6 +456,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
         "failed": failed, "always": ALWAYS, "sac_runs": [r.path.name for r in sac_runs],
         "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}
                             | {provenance.git_revision()}),
+        "t2_rule": t2_rule, "rule_in_force": experiments.MUJOCO_T2_RULE,
     }
     environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
                                      autoescape=jinja2.select_autoescape(["html"]),
@@ -385,7 +466,8 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
     _atomic_write(out_dir / "index.html", html.encode())
     summary = {"profile": profile.name, "env_id": env_id, "spacing": spacing, "rows": rows,
                "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
-               "failed": [{"run_id": i, "reason": why} for i, why in failed]}
+               "failed": [{"run_id": i, "reason": why} for i, why in failed],
+               "t2_rule": t2_rule}
     _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
     return out_dir / "index.html"
 
@@ -422,4 +504,4 @@ def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"
     out_dir = Path(out_dir or report_dir(profile, ablation_report_name(env_id)))
     return write_ablation_report(cells, sac_outcome, chosen, env_id,
                                  f"ablate-threshold-{profile}-{env_id}-s{n_seeds}", storage, [],
-                                 out_dir)
+                                 out_dir, t2_rule_standing(env_id, store, profile))

@@ -37,33 +37,52 @@ DRL_EG_ENV_DEFAULTS: dict[str, dict[str, float]] = {
 DEFAULT_GUIDE_NOISE_STD = 0.1
 
 
-def drl_eg_env_defaults(env_id: str) -> dict[str, float]:
+ALWAYS_GUIDE = 1e6  # a T2 no distance reaches: every state is guided while the gate is open
+
+# Issue 14: the MuJoCo default T2 is fixed from the threshold ablation on Ant and Walker2d at
+# the reduced budget, by the criterion written before its runs (``ablation.T2_RULE_CRITERION``),
+# before any Fig. 3 or Fig. 4 DRL-EG run at that budget trains, and not changed after them.
+# The rule is a multiple of each env's demonstration-state spacing, or "always". Until it is
+# set (None) those runs wait; quick keeps the spacing rule (a multiple of 1).
+MUJOCO_T2_RULE: float | str | None = None
+MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+RULED_PROFILES = ("reduced", "paper")  # the budgets at which the ablation's rule applies
+T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
+
+
+def drl_eg_env_defaults(env_id: str, profile: str | None = None, algo: str = "drl-eg"
+                        ) -> dict[str, float]:
     """DRL-EG's T2 and sigma for ``env_id``: the table's, else T2 = the median spacing of the
     env's committed demonstration states (``baselines.drl_eg.demo_state_spacing``), written
-    into the spec as a number so the run records the value it used."""
+    into the spec as a number so the run records the value it used. At the reduced and paper
+    budgets a MuJoCo env takes ``MUJOCO_T2_RULE`` times that spacing (or always-guide) once
+    the rule is set (not the GMM variant: its T2 is unused, and its runs need not wait);
+    ``profile=None`` gives the spacing itself (the ablation's unit)."""
     if env_id in DRL_EG_ENV_DEFAULTS:
         return dict(DRL_EG_ENV_DEFAULTS[env_id])
     from baselines.drl_eg import demo_state_spacing
     from replicate.demos import default_demo_path, load_demos
 
     demos = load_demos(default_demo_path(env_id), env_id)
-    spacing = demo_state_spacing(demos.observations.astype(np.float64))
-    return {"guide_threshold": float(f"{spacing:.4g}"),
-            "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
+    spacing = float(f"{demo_state_spacing(demos.observations.astype(np.float64)):.4g}")
+    threshold = spacing
+    if MUJOCO_T2_RULE is not None and takes_t2_rule(profile, env_id, algo):
+        # the same arithmetic as the ablation's grid, so a ruled run is the ablation's run
+        threshold = (ALWAYS_GUIDE if MUJOCO_T2_RULE == "always"
+                     else float(MUJOCO_T2_RULE) * spacing)
+    return {"guide_threshold": threshold, "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
 
-# Issue 14: the MuJoCo default T2 is fixed from the threshold ablation on Ant and Walker2d at
-# the reduced budget, before any Fig. 3 or Fig. 4 DRL-EG run at that budget trains, and not
-# changed after them. Until then (None) those runs wait; quick keeps the spacing rule.
-MUJOCO_T2_RULE: str | None = None
-MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
-T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
+
+def takes_t2_rule(profile: str | None, env_id: str, algo: str) -> bool:
+    """Whether a run's T2 comes from the MuJoCo rule: DRL-EG (V-SAC or twin-Q) on MuJoCo at
+    the reduced or paper budget."""
+    return profile in RULED_PROFILES and env_id in MUJOCO_ENVS and algo in T2_ALGORITHMS
 
 
 def waits_for_t2_rule(profile: str, env_id: str, algo: str) -> bool:
     """True for a DRL-EG run on MuJoCo at the reduced or paper budget while the MuJoCo T2
     rule is not fixed."""
-    return (MUJOCO_T2_RULE is None and profile in ("reduced", "paper")
-            and env_id in MUJOCO_ENVS and algo in T2_ALGORITHMS)
+    return MUJOCO_T2_RULE is None and takes_t2_rule(profile, env_id, algo)
 
 
 T2_WAIT_REASON = ("waits for the MuJoCo T2 rule, fixed from `nox -s ablate-threshold -- "
@@ -99,7 +118,7 @@ def figure3_grid(profile: Profile, seeds: int | None = None
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
-                hyper.update(drl_eg_env_defaults(env_id))
+                hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
             for seed in range(n_seeds):
                 specs.append(RunSpec(algo=algo, env_id=env_id, seed=seed,
                                      total_steps=profile.steps[env_id],
@@ -509,7 +528,7 @@ def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = N
     for algo in ("sac", "drl-eg"):
         hyper = algorithm_overrides(algo, profile.overrides)
         if algo == "drl-eg":
-            hyper.update(drl_eg_env_defaults(env_id))
+            hyper.update(drl_eg_env_defaults(env_id, profile.name))
         specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
                   for seed in range(n_seeds)]
     return specs

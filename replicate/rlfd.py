@@ -79,7 +79,7 @@ def rlfd_grid(profile: Profile, seeds: int | None = None, algorithms: tuple[str,
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
-                hyper.update(drl_eg_env_defaults(env_id))
+                hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
             specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes,
                               hyper) for seed in range(n_seeds)]
     return specs, skipped

@@ -94,3 +94,34 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
     rebuilt = ablation.rebuild_threshold_ablation("smoke", store, tmp_path / "again", env_id)
     again = json.loads((rebuilt.parent / "summary.json").read_text())
     assert again["rows"] == summary["rows"]
+    # the MuJoCo rule's standing: one seed of Walker2d only, so no choice yet
+    rule = summary["t2_rule"]
+    assert not rule["complete"] and rule["choice"] is None
+    assert all(list(r["per_env"]) == [env_id] and r["per_env"][env_id]["n"] == 1
+               for r in rule["rows"])
+    assert 'id="t2-rule"' in html and "Not chosen yet" in html
+
+
+def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
+    import numpy as np
+
+    from replicate.ablation import T2_SETTINGS, choose_t2_rule
+
+    envs = ("Ant-v5", "Walker2d-v5")
+    gains = {setting: {"Ant-v5": [0.1 * i] * 3, "Walker2d-v5": [0.0, 0.1, 0.2]}
+             for i, setting in enumerate(T2_SETTINGS)}
+    gains["16x"] = {"Ant-v5": [0.5, 0.6, 0.7], "Walker2d-v5": [0.3, 0.2, 0.1]}  # mean 0.4
+    rng = np.random.default_rng(0)
+    choice = choose_t2_rule(gains, rng, envs, seeds=3)
+    assert choice["complete"] and choice["choice"] == "16x"
+    row = next(r for r in choice["rows"] if r["setting"] == "16x")
+    assert np.isclose(row["gain"], 0.4) and row["low"] <= 0.4 <= row["high"] and row["low"] > 0
+    gains["4x"] = {"Ant-v5": [0.4] * 3, "Walker2d-v5": [0.4] * 3}  # ties 16x: the smaller wins
+    assert choose_t2_rule(gains, rng, envs, seeds=3)["choice"] == "4x"
+    gains["always"]["Walker2d-v5"] = [9.0, 9.0]  # a missing seed: no choice, only a leader
+    partial = choose_t2_rule(gains, rng, envs, seeds=3)
+    assert not partial["complete"] and partial["choice"] is None
+    assert partial["leader"] == "always"
+    del gains["64x"]["Ant-v5"]  # an env not trained: no mean gain for that setting
+    row = next(r for r in choose_t2_rule(gains, rng, envs, 3)["rows"] if r["setting"] == "64x")
+    assert np.isnan(row["gain"]) and list(row["per_env"]) == ["Walker2d-v5"]

@@ -41,3 +41,30 @@ def test_reduced_mujoco_drl_eg_runs_wait_for_the_t2_rule(tmp_path, capsys):
     assert waiting == {(env, "drl-eg") for env in ("Hopper-v5", "Walker2d-v5",
                                                    "HalfCheetah-v5", "Ant-v5")}
     assert not waits_for_t2_rule("quick", "Ant-v5", "drl-eg")  # quick keeps the spacing rule
+
+
+def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
+    from replicate import ablation, experiments
+    from replicate.experiments import figure3_grid, figure4_grid, get_profile
+    from replicate.runner import prepare
+
+    reduced = get_profile("reduced")
+    spacing = ablation.threshold_spacing("Ant-v5")
+
+    def ant_drl_eg(specs, algo="drl-eg"):
+        return [s for s in specs if s.env_id == "Ant-v5" and s.algo == algo]
+
+    gmm_before = ant_drl_eg(figure3_grid(reduced)[0], "drl-eg-gmm")
+    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", 16)
+    ruled = ant_drl_eg(figure3_grid(reduced)[0])
+    # a ruled Fig. 3 run is the ablation's run of that setting: same spec, so same run id
+    sweep = ablation.ablation_specs(reduced, "Ant-v5", 16 * spacing, 0.1, 3)
+    assert [prepare(s).run_id for s in ruled[:3]] == [prepare(s).run_id for s in sweep]
+    assert all(s.hyperparameters["guide_threshold"] == 16 * spacing
+               for s in ant_drl_eg(figure4_grid(reduced)))
+    assert ant_drl_eg(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # T2 unused there
+    assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == spacing
+    assert not experiments.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
+    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "always")
+    assert {s.hyperparameters["guide_threshold"]
+            for s in ant_drl_eg(figure3_grid(reduced)[0])} == {ablation.ALWAYS}
