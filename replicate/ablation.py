@@ -253,18 +253,25 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds):
                 prepare(spec)
 
-    # SAC on the same seeds: what T2 = 0 must reproduce exactly.
-    sac_outcome = run_grid(sac_specs(chosen, env_id, n_seeds), store, workers,
-                           checkpoint_interval, executor, address, device, gpu_workers,
-                           batch)
-    failed = list(sac_outcome.failed)
+    # The whole grid in one call, SAC on the same seeds first (what T2 = 0 must reproduce
+    # exactly): workers train points side by side, and with --batch the points' runs share
+    # batches (T2 and sigma are per member). The trials below then record what is stored.
+    sweep = [spec for threshold in grid_t2 for sigma in grid_sigma
+             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
+    trained = run_grid(sac_specs(chosen, env_id, n_seeds) + sweep, store, workers,
+                       checkpoint_interval, executor, address, device, gpu_workers, batch)
+    failed = list(trained.failed)
+    failed_ids = {run_id for run_id, _ in failed}
+    sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store),
+                              [f for f in failed if f[0].startswith("sac__")], None)
 
     def objective(trial: Any) -> float:
         threshold = trial.suggest_categorical("guide_threshold", grid_t2)
         sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
-        outcome = run_grid(ablation_specs(chosen, env_id, threshold, sigma, n_seeds), store,
-                           workers, checkpoint_interval, executor, address, device,
-                           gpu_workers, batch)
+        specs = [s for s in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
+                 if prepare(s).run_id not in failed_ids]  # a failure is not retrained at once
+        outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address,
+                           device, gpu_workers, batch)
         failed.extend(outcome.failed)
         if not outcome.runs:
             raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",

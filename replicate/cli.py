@@ -201,6 +201,9 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--executor", default="local", choices=["local", "ray"],
                       help="local processes, or tasks on a running Ray cluster (--address)")
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
+    fig4.add_argument("--checkpoint-interval", type=int, default=10_000,
+                      help="env steps between checkpoints of each run or batch (0: none); "
+                           "a batch's holds every member's replay, so give large ones more")
     fig4.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     fig4.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig4 for quick, "
@@ -233,6 +236,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="the env to sweep: MountainCar (absolute T2 grid), or Ant-v5 or "
                              "Walker2d-v5 (T2 at 1, 4, 16, 64 times the median demonstration-"
                              "state spacing, and always; 3 seeds)")
+    ablate.add_argument("--checkpoint-interval", type=int, default=10_000,
+                        help="env steps between checkpoints of each run or batch (0: none); "
+                             "a batch's holds every member's replay, so give large ones more")
     ablate.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     ablate.add_argument("--out", type=Path, default=None,
                         help="report directory (default: reports/ablate-threshold[-<env>] "
@@ -400,7 +406,8 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
     report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
                          store=args.store, out_dir=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers, batch=args.batch)
+                         gpu_workers=args.gpu_workers, batch=args.batch,
+                         checkpoint_interval=args.checkpoint_interval)
     print(f"report: {report}")
     return 0
 
@@ -414,7 +421,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     sigmas=args.sigmas, executor=args.executor,
                                     address=args.address, device=args.device,
                                     gpu_workers=args.gpu_workers, batch=args.batch,
-                                    env_id=args.env)
+                                    env_id=args.env,
+                                    checkpoint_interval=args.checkpoint_interval)
     print(f"report: {report}")
     return 0
 

@@ -317,10 +317,18 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     recorder.finish()
 
 
+# Settings each member of a batch keeps for itself (the batched explorer reads them per
+# member), so runs that differ in them may share a batch: a T2 sweep trains as one.
+PER_MEMBER_SETTINGS = ("guide_threshold", "guide_noise_std")
+
+
 def batch_key(prepared: PreparedRun) -> str:
-    """Runs with equal keys may share a batch: everything of the resolved spec but the seed."""
+    """Runs with equal keys may share a batch: everything of the resolved spec but the seed
+    and the per-member guidance settings (T2, sigma)."""
     resolved = {k: v for k, v in prepared.resolved.items()
                 if k not in ("seed", "spec_hash", "demos_path")}
+    resolved["hyperparameters"] = {k: v for k, v in resolved["hyperparameters"].items()
+                                   if k not in PER_MEMBER_SETTINGS}
     return json.dumps(resolved, sort_keys=True, default=str)
 
 
@@ -357,7 +365,8 @@ def execute_batch(members: list[PreparedRun], store: Path,
         return BatchOutcome([], [])
     trainer = batched_trainer(members[0].spec.algo)
     if len({batch_key(p) for p in members}) != 1 or trainer is None:
-        raise HarnessError("the runs of a batch must differ in their seed alone, and their "
+        raise HarnessError("the runs of a batch must differ in their seed and T2/sigma alone, "
+                           "and their "
                            f"algorithm have a batched trainer ({members[0].spec.algo})",
                            "batch only sac, sac-twin-q and drl-eg runs of one grid cell")
     store.mkdir(parents=True, exist_ok=True)

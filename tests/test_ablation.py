@@ -36,6 +36,20 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
     assert json.loads((out / "summary.json").read_text())["rows"] == summary["rows"]
 
 
+def test_with_batch_the_whole_sweep_trains_as_one_batch_and_t2_zero_still_equals_sac(tmp_path):
+    from replicate.runner import load_run
+
+    store, out = tmp_path / "runs", tmp_path / "report"
+    assert main(["ablate-threshold", "--profile", "smoke", "--seeds", "2", "--store", str(store),
+                 "--out", str(out), "--thresholds", "0", "1000000", "--batch", "8",
+                 "--workers", "1", "--device", "cpu", "--checkpoint-interval", "0"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    drl_eg = [load_run(store / run) for row in summary["rows"] for run in row["runs"]]
+    assert [r.provenance["batch"]["size"] for r in drl_eg] == [4] * 4  # both points, one batch
+    # a member's curve does not depend on its neighbours: T2 = 0 is still SAC, seed by seed
+    assert summary["zero_threshold_equals_sac"] == {"pairs": 2, "equal": 2, "holds": True}
+
+
 def test_a_failed_grid_point_is_trained_when_the_sweep_runs_again(tmp_path):
     store, out = tmp_path / "runs", tmp_path / "report"
     store.mkdir()

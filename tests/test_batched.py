@@ -322,18 +322,40 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
         resolve_batch(4, ppo_only, "cpu")
 
 
-def test_plan_batches_groups_by_everything_but_the_seed():
+def test_plan_batches_groups_by_everything_but_the_seed_and_t2():
     from replicate.experiments import plan_batches
 
     specs = _specs(seeds=(0, 1, 2)) + _specs(algo="sac", seeds=(0, 1)) \
         + [RunSpec("ppo", MOUNTAINCAR, 0, 600, 200, 1, {})] \
-        + _specs(seeds=(0,), guide_threshold=0.2)
+        + _specs(seeds=(0,), guide_threshold=0.2, guide_noise_std=0.3) \
+        + _specs(seeds=(0,), learning_rate=1e-3)
     tasks = plan_batches([prepare(s) for s in specs], batch=2)
     shapes = sorted((t[0].spec.algo, len(t)) if isinstance(t, list) else (t.spec.algo, 0)
                     for t in tasks)
-    assert shapes == [("drl-eg", 1), ("drl-eg", 1), ("drl-eg", 2), ("ppo", 0), ("sac", 2)]
-    assert all(len({p.spec.seed for p in t}) == len(t) for t in tasks if isinstance(t, list))
+    # T2 and sigma are per member: the 0.2 point joins seed 2 of the default point; another
+    # learning rate is another batch
+    assert shapes == [("drl-eg", 1), ("drl-eg", 2), ("drl-eg", 2), ("ppo", 0), ("sac", 2)]
+    mixed = next(t for t in tasks if isinstance(t, list) and len({
+        p.config.guide_threshold for p in t}) == 2)
+    assert [p.spec.seed for p in mixed] == [2, 0]
     assert not any(isinstance(t, list) for t in plan_batches([prepare(s) for s in specs], None))
+
+
+def test_a_t2_sweep_in_one_batch_gives_each_point_its_own_curve(tmp_path):
+    """Members that differ in T2 and sigma (the same seed included) train as one batch on
+    CPU and end on the curves their own points give in batches of their own."""
+    points = [{"guide_threshold": 0.02, "guide_noise_std": 0.1},
+              {"guide_threshold": 0.3, "guide_noise_std": 0.3}]
+    mixed = execute_batch([prepare(s) for point in points for s in _specs(seeds=(0,), **point)],
+                          tmp_path / "mixed", device="cpu").runs
+    alone = [execute_batch([prepare(s) for s in _specs(seeds=(0, 1), **point)],
+                           tmp_path / f"alone{i}", device="cpu").runs[0]
+             for i, point in enumerate(points)]
+    assert [r.path.name for r in mixed] == [r.path.name for r in alone]
+    assert [r.curve["returns"].tolist() for r in mixed] == \
+        [r.curve["returns"].tolist() for r in alone]
+    guided = [r.curve["guided_fraction"].iloc[1:].mean() for r in mixed]
+    assert guided[0] < guided[1]  # each member kept its own T2
 
 
 def test_every_batched_algorithm_trains_a_tiny_batch():
