@@ -126,3 +126,17 @@ def test_ddpgfd_is_deterministic_and_explains_missing_transitions(monkeypatch):
     monkeypatch.setattr("tests.helpers.load_demos", pairs_only)
     with pytest.raises(ValueError, match="needs demonstration transitions"):
         train_tiny("ddpgfd", seed=4, steps=10)
+
+
+def test_denormals_are_flushed_while_ddpgfd_trains_and_not_after():
+    from baselines.common.device import flush_denormals
+
+    tiny = torch.tensor([1e-39], dtype=torch.float32)  # a denormal float32
+    assert (tiny * 1.0).item() != 0.0
+    with flush_denormals(True):
+        assert (tiny * 1.0).item() == 0.0
+    with flush_denormals(False):
+        assert (tiny * 1.0).item() != 0.0
+    assert DDPGfDConfig().flush_denormals
+    train_tiny("ddpgfd", seed=4, steps=50, hidden_sizes=(16, 16))
+    assert (tiny * 1.0).item() != 0.0  # the next run in this process computes as before
