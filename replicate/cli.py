@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+import json
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -443,7 +445,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
                                     rebuild_threshold_ablation)
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
-    from replicate.report import runs_missing_for
+    from replicate.report import runs_missing_for, summary_run_ids
     from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
 
@@ -467,13 +469,30 @@ def _cmd_report(args: argparse.Namespace) -> int:
             not_written.add(profile)
             return ""
         missing = runs_missing_for(path, args.store)
-        if missing:  # a report is never replaced by one built from fewer of its runs
-            return (f"{path}: left as it is; {len(missing)} of the runs it names are not in "
-                    f"{args.store} (e.g. {missing[0]})")
-        written = build(path)
-        if written is None:
-            return f"{path}: no runs of the {profile} profile in {args.store}; left as it is"
-        return f"report: {written}"
+        if not missing:
+            written = build(path)
+            if written is None:
+                return f"{path}: no runs of the {profile} profile in {args.store}; left as it is"
+            return f"report: {written}"
+        # Some of the runs it names are gone (lost, or superseded by runs of a new spec): a
+        # report is never replaced by one built from fewer runs than it names.
+        trial = path.with_name(f".{path.name}.rebuild")
+        shutil.rmtree(trial, ignore_errors=True)
+        try:
+            written = build(trial)
+            before = len(summary_run_ids(json.loads((path / "summary.json").read_text())))
+            after = (len(summary_run_ids(json.loads((trial / "summary.json").read_text())))
+                     if written is not None else 0)
+            if after < before:
+                return (f"{path}: left as it is; {len(missing)} of the {before} runs it names "
+                        f"are not in {args.store} (e.g. {missing[0]}), and the store gives "
+                        f"{after}")
+            for item in trial.iterdir():
+                os.replace(item, path / item.name)
+        finally:
+            shutil.rmtree(trial, ignore_errors=True)
+        return (f"report: {path / 'index.html'} (from {after} runs; {len(missing)} of the "
+                f"{before} it named are no longer in {args.store})")
 
     not_written: set[str] = set()
 

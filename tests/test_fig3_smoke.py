@@ -78,3 +78,27 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     assert tianshou[1]["mean"] == published_points("Ant-v5", 200_000)[1].mean == 2133.0
     eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, np.random.default_rng(0))
     assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200
+
+
+def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3, tmp_path,
+                                                                      capsys):
+    store, _ = smoke_fig3
+    out = tmp_path / "report"
+    assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
+    summary_file = out / "fig3" / "summary.json"
+    summary = json.loads(summary_file.read_text())
+    real = summary["runs"][0]["run_id"]
+    # a run it names was superseded (its spec changed): as many runs as before, so rebuilt
+    summary["runs"][0]["run_id"] = real[:-12] + "0" * 12
+    summary_file.write_text(json.dumps(summary))
+    capsys.readouterr()
+    assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
+    assert "1 of the" in capsys.readouterr().out
+    rebuilt = json.loads(summary_file.read_text())
+    assert rebuilt["runs"][0]["run_id"] == real and not list(out.glob(".*rebuild"))
+    # it names a run the store cannot replace: the store gives fewer, so it stays
+    rebuilt["runs"].append(dict(rebuilt["runs"][0], run_id="sac__lost__s9__" + "1" * 12))
+    summary_file.write_text(json.dumps(rebuilt))
+    assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
+    assert "left as it is" in capsys.readouterr().out
+    assert json.loads(summary_file.read_text()) == rebuilt
