@@ -58,8 +58,9 @@ class DDPGfDConfig:
     learning_starts: int = 1  # demonstrations fill the buffer, so learning starts at once
     gradient_steps: int = 1  # per env step, as for SAC in the harness
     torch_threads: int = 1
-    # Denormals treated as zero (TensorFlow's default on x86 CPUs): the saturated tanh of the
-    # actor makes its gradients denormal, which slowed CPU training tenfold.
+    # Denormals treated as zero (TensorFlow's default on x86 CPUs; every trainer of the
+    # harness does): the saturated tanh of the actor makes its gradients denormal, which
+    # slowed CPU training tenfold. False computes with them, for comparison.
     flush_denormals: bool = True
 
     def __post_init__(self) -> None:

@@ -8,6 +8,7 @@ is imported on first lookup, so nothing else needs editing.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import pkgutil
 from collections.abc import Callable
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from baselines.common.context import TrainContext
+from baselines.common.device import flush_denormals
 
 
 @dataclass(frozen=True)
@@ -46,13 +48,24 @@ def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool =
     """Decorator for an algorithm's ``train`` function."""
 
     def wrap(train: Callable) -> Callable:
-        if name in _REGISTRY and _REGISTRY[name].train is not train:
+        if name in _REGISTRY and _REGISTRY[name].train.__wrapped__ is not train:
             raise ValueError(f"algorithm '{name}' registered twice")
         summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
-        _REGISTRY[name] = Algorithm(name, config_cls, train, needs_demos, summary, gpu)
+        _REGISTRY[name] = Algorithm(name, config_cls, _flushing_denormals(train), needs_demos,
+                                    summary, gpu)
         return train
 
     return wrap
+
+
+def _flushing_denormals(train: Callable) -> Callable:
+    """``train`` with denormal floats flushed to zero while it runs (why: flush_denormals)."""
+    @functools.wraps(train)
+    def flushed(*args: Any, **kwargs: Any) -> Any:
+        with flush_denormals():
+            return train(*args, **kwargs)
+
+    return flushed
 
 
 _BATCHED: dict[str, Callable] = {}
@@ -63,7 +76,7 @@ def register_batched(name: str) -> Callable[[Callable], Callable]:
     trains the members of a ``baselines.batched.BatchContext`` together."""
 
     def wrap(train: Callable) -> Callable:
-        _BATCHED[name] = train
+        _BATCHED[name] = _flushing_denormals(train)
         return train
 
     return wrap

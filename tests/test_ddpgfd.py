@@ -140,3 +140,24 @@ def test_denormals_are_flushed_while_ddpgfd_trains_and_not_after():
     assert DDPGfDConfig().flush_denormals
     train_tiny("ddpgfd", seed=4, steps=50, hidden_sizes=(16, 16))
     assert (tiny * 1.0).item() != 0.0  # the next run in this process computes as before
+
+
+def test_every_registered_trainer_runs_with_denormals_flushed():
+    from baselines import registry
+    from baselines.sac import SACConfig
+
+    seen = []
+
+    def probe(*args):
+        seen.append((torch.tensor([1e-39]) * 1.0).item())
+
+    registry.register("probe-denormals", SACConfig)(probe)
+    registry.register_batched("probe-denormals")(probe)
+    try:
+        registry.get_algorithm("probe-denormals").train(None, None)
+        registry.batched_trainer("probe-denormals")(None, None)
+    finally:
+        registry._REGISTRY.pop("probe-denormals")
+        registry._BATCHED.pop("probe-denormals")
+    assert seen == [0.0, 0.0]
+    assert (torch.tensor([1e-39]) * 1.0).item() != 0.0  # and not after
