@@ -60,11 +60,23 @@ def portable_path(path: Path | str, resolve: bool = True) -> str:
         return str(path)
 
 
+def cpu_model() -> str:
+    """The CPU's model name: CPU curves are bit-reproducible on the same kind of CPU only (the
+    matrix kernels torch picks, and so their rounding, follow its instruction set)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine() -> dict[str, str | int]:
     # the interpreter by its venv path inside the project (not resolved: a venv's python is
     # a link to the system's), by its name alone outside it
     executable = portable_path(sys.executable, resolve=False)
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count() or 0,
+            "cpu_model": cpu_model(), "cpu_count": os.cpu_count() or 0,
             "python_executable": executable if not Path(executable).is_absolute()
             else Path(executable).name}
