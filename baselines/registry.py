@@ -48,7 +48,8 @@ def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool =
     """Decorator for an algorithm's ``train`` function."""
 
     def wrap(train: Callable) -> Callable:
-        if name in _REGISTRY and _REGISTRY[name].train.__wrapped__ is not train:
+        registered = _REGISTRY[name].train if name in _REGISTRY else None
+        if registered is not None and getattr(registered, "__wrapped__", None) is not train:
             raise ValueError(f"algorithm '{name}' registered twice")
         summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
         _REGISTRY[name] = Algorithm(name, config_cls, _flushing_denormals(train), needs_demos,

@@ -29,9 +29,11 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (ALWAYS_GUIDE, DEFAULT_GUIDE_NOISE_STD, GridOutcome, Profile,
-                                   algorithm_overrides, drl_eg_env_defaults, get_profile,
-                                   report_dir, run_grid, stored_runs)
+from replicate import experiments
+from replicate.experiments import (ALWAYS_GUIDE, DEFAULT_GUIDE_NOISE_STD, SPACING_MULTIPLES,
+                                   T2_RULE_SETTINGS, GridOutcome, Profile, algorithm_overrides,
+                                   drl_eg_env_defaults, get_profile, report_dir, run_grid,
+                                   stored_runs)
 from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
@@ -51,9 +53,9 @@ ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome 
 # demonstration states (which admits about 0.5% of an untrained Ant's states), plus always,
 # on fewer seeds than Fig. 3: 3 seeds x 5 points x 2 envs is already 6M env steps at 200k.
 MUJOCO_ABLATION_ENVS = ("Ant-v5", "Walker2d-v5")
-SPACING_MULTIPLES = (1, 4, 16, 64)
 MUJOCO_ABLATION_SEEDS = 3
-T2_SETTINGS = tuple(f"{m}x" for m in SPACING_MULTIPLES) + ("always",)
+T2_SETTINGS = T2_RULE_SETTINGS
+RULE_PROFILE = "reduced"  # the budget whose ablation fixes the MuJoCo rule
 # Written before any reduced-budget ablation run had finished, and not to be changed after.
 T2_RULE_CRITERION = (
     "For each T2 setting (1, 4, 16 and 64 times the env's demonstration-state spacing, and "
@@ -245,6 +247,7 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
         raise HarnessError("thresholds and sigmas must be >= 0", "pass values like 0 0.05 0.2")
     store = Path(store)
     store.mkdir(parents=True, exist_ok=True)
+    shared_study = storage is not None
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
     out_dir = Path(out_dir or report_dir(profile, ablation_report_name(env_id)))
 
@@ -253,17 +256,21 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds):
                 prepare(spec)
 
-    # The whole grid in one call, SAC on the same seeds first (what T2 = 0 must reproduce
-    # exactly): workers train points side by side, and with --batch the points' runs share
-    # batches (T2 and sigma are per member). The trials below then record what is stored.
-    sweep = [spec for threshold in grid_t2 for sigma in grid_sigma
-             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
-    trained = run_grid(sac_specs(chosen, env_id, n_seeds) + sweep, store, workers,
-                       checkpoint_interval, executor, address, device, gpu_workers, batch)
+    # SAC on the same seeds (what T2 = 0 must reproduce exactly) and, on one machine, the
+    # whole grid in the same call: workers train points side by side, and with --batch the
+    # points' runs share batches (T2 and sigma are per member); the trials below then record
+    # what is stored. With --storage, machines sharing the study take its points one by one.
+    sac = sac_specs(chosen, env_id, n_seeds)
+    sweep = [] if shared_study else [
+        spec for threshold in grid_t2 for sigma in grid_sigma
+        for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
+    trained = run_grid(sac + sweep, store, workers, checkpoint_interval, executor, address,
+                       device, gpu_workers, batch)
     failed = list(trained.failed)
     failed_ids = {run_id for run_id, _ in failed}
-    sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store),
-                              [f for f in failed if f[0].startswith("sac__")], None)
+    sac_ids = {prepare(spec).run_id for spec in sac}
+    sac_outcome = GridOutcome(stored_runs(sac, store),
+                              [f for f in failed if f[0] in sac_ids], None)
 
     def objective(trial: Any) -> float:
         threshold = trial.suggest_categorical("guide_threshold", grid_t2)
@@ -317,6 +324,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
         for sigma in grid_sigma:
             specs = ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
             cells.append(Cell(threshold, sigma, stored_runs(specs, store)))
+    stored = {r.path.name for c in cells for r in c.runs} | {r.path.name for r in sac_outcome.runs}
+    failed = [f for f in failed if f[0] not in stored]  # another worker may have finished it
     return write_ablation_report(cells, sac_outcome, chosen, env_id, study_name, storage,
                                  failed, out_dir, t2_rule_standing(env_id, store, profile))
 
@@ -416,18 +425,20 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
 
 
 def t2_rule_standing(env_id: str, store: Path, profile: str) -> dict[str, Any] | None:
-    """Where the MuJoCo T2 rule stands on the store's runs (None for MountainCar)."""
+    """Where the MuJoCo T2 rule stands on the store's runs of this profile (None for
+    MountainCar); only the reduced profile's standing fixes the rule."""
     if env_id not in MUJOCO_ABLATION_ENVS:
         return None
-    return choose_t2_rule(t2_rule_gains(Path(store), profile),
-                          np.random.default_rng(REPORT_SEED + 1))
+    standing = choose_t2_rule(t2_rule_gains(Path(store), profile),
+                              np.random.default_rng(REPORT_SEED + 1))
+    return dict(standing, profile=profile, fixes_the_rule=profile == RULE_PROFILE)
 
 
 def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
                           env_id: str, study_name: str, storage: str,
                           failed: list[tuple[str, str]], out_dir: Path,
                           t2_rule: dict[str, Any] | None = None) -> Path:
-    from replicate import experiments, provenance
+    from replicate import provenance
     from replicate.report import _atomic_write
 
     rng = np.random.default_rng(REPORT_SEED)

@@ -487,8 +487,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
                 return (f"{path}: left as it is; {len(missing)} of the {before} runs it names "
                         f"are not in {args.store} (e.g. {missing[0]}), and the store gives "
                         f"{after}")
-            for item in trial.iterdir():
-                os.replace(item, path / item.name)
+            old = path.with_name(f".{path.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(path, old)  # two renames: the report is never half old, half new
+            os.replace(trial, path)
+            shutil.rmtree(old, ignore_errors=True)
         finally:
             shutil.rmtree(trial, ignore_errors=True)
         return (f"report: {path / 'index.html'} (from {after} runs; {len(missing)} of the "

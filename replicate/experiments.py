@@ -42,9 +42,12 @@ ALWAYS_GUIDE = 1e6  # a T2 no distance reaches: every state is guided while the 
 # Issue 14: the MuJoCo default T2 is fixed from the threshold ablation on Ant and Walker2d at
 # the reduced budget, by the criterion written before its runs (``ablation.T2_RULE_CRITERION``),
 # before any Fig. 3 or Fig. 4 DRL-EG run at that budget trains, and not changed after them.
-# The rule is a multiple of each env's demonstration-state spacing, or "always". Until it is
-# set (None) those runs wait; quick keeps the spacing rule (a multiple of 1).
-MUJOCO_T2_RULE: float | str | None = None
+# The rule is one of T2_RULE_SETTINGS, as choose_t2_rule names it: a multiple of each env's
+# demonstration-state spacing ("16x"), or "always". Until it is set (None) those runs wait;
+# quick keeps the spacing rule (1x).
+SPACING_MULTIPLES = (1, 4, 16, 64)
+T2_RULE_SETTINGS = tuple(f"{m}x" for m in SPACING_MULTIPLES) + ("always",)
+MUJOCO_T2_RULE: str | None = None
 MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
 RULED_PROFILES = ("reduced", "paper")  # the budgets at which the ablation's rule applies
 T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
@@ -67,9 +70,12 @@ def drl_eg_env_defaults(env_id: str, profile: str | None = None, algo: str = "dr
     spacing = float(f"{demo_state_spacing(demos.observations.astype(np.float64)):.4g}")
     threshold = spacing
     if MUJOCO_T2_RULE is not None and takes_t2_rule(profile, env_id, algo):
-        # the same arithmetic as the ablation's grid, so a ruled run is the ablation's run
+        if MUJOCO_T2_RULE not in T2_RULE_SETTINGS:
+            raise HarnessError(f"MUJOCO_T2_RULE = {MUJOCO_T2_RULE!r} is not a setting of the "
+                               "ablation", f"set one of {', '.join(T2_RULE_SETTINGS)}")
+        # the ablation's own arithmetic (an int times the spacing): a ruled run is its run
         threshold = (ALWAYS_GUIDE if MUJOCO_T2_RULE == "always"
-                     else float(MUJOCO_T2_RULE) * spacing)
+                     else int(MUJOCO_T2_RULE[:-1]) * spacing)
     return {"guide_threshold": threshold, "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
 
 

@@ -10,6 +10,8 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
+from baselines.common.device import can_flush_denormals
+
 PACKAGES = ("torch", "numpy", "scipy", "gymnasium", "mujoco", "dm-control", "shimmy",
             "scikit-learn", "pandas", "seaborn", "matplotlib", "jinja2", "drl-eg-replicate")
 
@@ -78,5 +80,6 @@ def machine() -> dict[str, str | int]:
     executable = portable_path(sys.executable, resolve=False)
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
             "cpu_model": cpu_model(), "cpu_count": os.cpu_count() or 0,
+            "flushes_denormals": can_flush_denormals(),
             "python_executable": executable if not Path(executable).is_absolute()
             else Path(executable).name}

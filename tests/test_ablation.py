@@ -130,7 +130,11 @@ def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
     assert choice["complete"] and choice["choice"] == "16x"
     row = next(r for r in choice["rows"] if r["setting"] == "16x")
     assert np.isclose(row["gain"], 0.4) and row["low"] <= 0.4 <= row["high"] and row["low"] > 0
-    gains["4x"] = {"Ant-v5": [0.4] * 3, "Walker2d-v5": [0.4] * 3}  # ties 16x: the smaller wins
+    # an exact tie (values exact in binary): the smaller T2 wins, whichever comes first
+    gains["4x"] = {"Ant-v5": [0.5] * 3, "Walker2d-v5": [0.5] * 3}
+    gains["16x"] = {"Ant-v5": [0.75] * 3, "Walker2d-v5": [0.25] * 3}
+    assert choose_t2_rule(gains, rng, envs, seeds=3)["choice"] == "4x"
+    gains["4x"], gains["16x"] = gains["16x"], gains["4x"]
     assert choose_t2_rule(gains, rng, envs, seeds=3)["choice"] == "4x"
     gains["always"]["Walker2d-v5"] = [9.0, 9.0]  # a missing seed: no choice, only a leader
     partial = choose_t2_rule(gains, rng, envs, seeds=3)

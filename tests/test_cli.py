@@ -85,6 +85,7 @@ def test_train_writes_a_complete_run_directory_and_skips_it_the_second_time(tmp_
     assert prov["seed"] == 2 and prov["wall_time_s"] > 0 and prov["versions"]["torch"]
     assert prov["git_revision"]
     assert prov["machine"]["cpu_model"]  # CPU curves repeat bit for bit on the same CPU kind
+    assert prov["machine"]["flushes_denormals"] is True  # x86: every trainer flushes them
     curve = (run_dir / "curve.csv").read_text().splitlines()
     assert curve[0].startswith("step,return_mean") and len(curve) == 1 + 3  # steps 0, 60, 120
     mtime = (run_dir / "provenance.json").stat().st_mtime

@@ -44,27 +44,35 @@ def test_reduced_mujoco_drl_eg_runs_wait_for_the_t2_rule(tmp_path, capsys):
 
 
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
+    import pytest
+
     from replicate import ablation, experiments
+    from replicate.errors import HarnessError
     from replicate.experiments import figure3_grid, figure4_grid, get_profile
+    from replicate.rlfd import rlfd_grid
     from replicate.runner import prepare
 
     reduced = get_profile("reduced")
-    spacing = ablation.threshold_spacing("Ant-v5")
+    grid = ablation.default_thresholds("reduced", "Ant-v5")  # 1x, 4x, 16x, 64x, always
 
-    def ant_drl_eg(specs, algo="drl-eg"):
+    def ant(specs, algo="drl-eg"):
         return [s for s in specs if s.env_id == "Ant-v5" and s.algo == algo]
 
-    gmm_before = ant_drl_eg(figure3_grid(reduced)[0], "drl-eg-gmm")
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", 16)
-    ruled = ant_drl_eg(figure3_grid(reduced)[0])
-    # a ruled Fig. 3 run is the ablation's run of that setting: same spec, so same run id
-    sweep = ablation.ablation_specs(reduced, "Ant-v5", 16 * spacing, 0.1, 3)
-    assert [prepare(s).run_id for s in ruled[:3]] == [prepare(s).run_id for s in sweep]
-    assert all(s.hyperparameters["guide_threshold"] == 16 * spacing
-               for s in ant_drl_eg(figure4_grid(reduced)))
-    assert ant_drl_eg(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # T2 unused there
-    assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == spacing
+    def ids(specs):
+        return [prepare(s).run_id for s in specs]
+
+    gmm_before = ant(figure3_grid(reduced)[0], "drl-eg-gmm")
+    for setting, threshold in zip(ablation.T2_SETTINGS, grid):
+        monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", setting)
+        sweep = ablation.ablation_specs(reduced, "Ant-v5", threshold, 0.1, 3)
+        # a ruled run is the ablation's run of that setting: same spec, same run id
+        assert ids(ant(figure3_grid(reduced)[0])[:3]) == ids(sweep)
+        assert ids(ant(rlfd_grid(reduced)[0])[:3]) == ids(sweep)
+        assert {s.hyperparameters["guide_threshold"]
+                for s in ant(figure4_grid(reduced))} == {threshold}
+    assert ant(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # its T2 is unused
+    assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == grid[0]
     assert not experiments.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "always")
-    assert {s.hyperparameters["guide_threshold"]
-            for s in ant_drl_eg(figure3_grid(reduced)[0])} == {ablation.ALWAYS}
+    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "2x")  # not a setting of the sweep
+    with pytest.raises(HarnessError, match="not a setting of the ablation"):
+        figure3_grid(reduced)

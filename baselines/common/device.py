@@ -29,21 +29,29 @@ _flushing = False  # torch has no getter for the flag; only flush_denormals sets
 
 @contextlib.contextmanager
 def flush_denormals(enabled: bool = True) -> Iterator[None]:
-    """Inside the block the CPU treats denormal floats as zero (``enabled``) or not, and
-    afterwards as before. Denormals arise where values decay towards zero (Adam's moments
-    of dead units, gradients through a saturated tanh), and x86 arithmetic on them is
-    about ten times slower: DDPGfD slowed tenfold after its first MountainCar episode, a
-    SAC seed batch on Walker2d by a sixth. Every registered trainer runs inside one
-    (``baselines.registry``); flushing changed no curve of the runs checked (README)."""
+    """Inside the block this thread's float arithmetic treats denormals as zero
+    (``enabled``) or not, and afterwards as before. Denormals arise where values decay
+    towards zero (Adam's moments of dead units, gradients through a saturated tanh), and x86
+    arithmetic on them is about ten times slower: DDPGfD slowed tenfold after its first
+    MountainCar episode, a SAC seed batch on Walker2d by a sixth. Every registered trainer
+    runs inside one (``baselines.registry``; runs use one torch thread, the caller's).
+    Where the CPU cannot flush (not x86 with SSE3) the block computes with denormals."""
     global _flushing
     before = _flushing
-    torch.set_flush_denormal(enabled)
-    _flushing = enabled
+    _flushing = torch.set_flush_denormal(enabled) and enabled
     try:
         yield
     finally:
         torch.set_flush_denormal(before)
         _flushing = before
+
+
+def can_flush_denormals() -> bool:
+    """Whether this CPU flushes denormals inside ``flush_denormals`` (recorded in each run's
+    provenance); the flag is left as it was."""
+    supported = torch.set_flush_denormal(True)
+    torch.set_flush_denormal(_flushing)
+    return bool(supported)
 
 
 def resolve_device(requested: str, has_gpu_path: bool) -> str:
