@@ -78,6 +78,17 @@ def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) ->
                                  "(up to 64), on CPU none")
 
 
+def _add_cell_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--algos", nargs="+", default=None, metavar="ALGO",
+                        help="train only these algorithms' cells of the grid (the report is "
+                             "still written from every run of the grid in the store)")
+    parser.add_argument("--envs", nargs="+", default=None, metavar="ENV",
+                        help="train only these environments' cells of the grid")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print the runs that would train, per cell, with their env steps "
+                             "and estimated minutes; train and write nothing")
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m replicate",
@@ -186,6 +197,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig3 for quick, "
                            "reports/<profile>/fig3 otherwise)")
+    _add_cell_arguments(fig3)
 
     fig4 = sub.add_parser(
         "fig4", help="train what Fig. 4 needs (paired SAC and DRL-EG) and write its report",
@@ -266,6 +278,7 @@ def _build_parser() -> argparse.ArgumentParser:
     rlfd.add_argument("--checkpoint-interval", type=int, default=10_000,
                       help="env steps between checkpoints of a run")
     _add_device_argument(rlfd, grid=True)
+    _add_cell_arguments(rlfd)
 
     report = sub.add_parser(
         "report", help="rebuild reports from the run store without training",
@@ -391,8 +404,10 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
                          workers=args.workers, checkpoint_interval=args.checkpoint_interval,
                          executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers, batch=args.batch)
-    print(f"report: {report}")
+                         gpu_workers=args.gpu_workers, batch=args.batch,
+                         algos=args.algos, envs=args.envs, dry_run=args.dry_run)
+    if report is not None:
+        print(f"report: {report}")
     return 0
 
 
@@ -435,8 +450,10 @@ def _cmd_rlfd(args: argparse.Namespace) -> int:
     report = run_rlfd(profile=args.profile, seeds=args.seeds, store=args.store,
                       out_dir=args.out, workers=args.workers,
                       checkpoint_interval=args.checkpoint_interval, device=args.device,
-                      batch=args.batch)
-    print(f"report: {report}")
+                      batch=args.batch, algos=args.algos, envs=args.envs,
+                      dry_run=args.dry_run)
+    if report is not None:
+        print(f"report: {report}")
     return 0
 
 

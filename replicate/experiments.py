@@ -297,11 +297,31 @@ def batch_bytes(prepared: PreparedRun, members: int) -> int:
     return members * (replay + 2**26)
 
 
+def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
+               workers: int) -> None:
+    """What a grid would train: its missing runs per env and algorithm, their env steps,
+    and the minutes they would take one run per process on ``workers`` (from the speeds
+    of the store's runs)."""
+    cells: dict[tuple[str, str], list[PreparedRun]] = {}
+    for p in missing:
+        cells.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
+    print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
+          f"{len(missing)} to train; nothing is trained or written")
+    for (env_id, algo), runs in sorted(cells.items()):
+        seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
+        steps = sum(p.spec.total_steps for p in runs)
+        print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
+              f"~{estimate_minutes(runs, store, 1):,.0f} min on one core")
+    total = sum(p.spec.total_steps for p in missing)
+    print(f"  total {total:,} env steps: about {estimate_minutes(missing, store, workers):,.0f} "
+          f"min on {workers} worker(s), one run per process")
+
+
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
              address: str | None = None, device: str = "auto",
              gpu_workers: int | None = None, batch: int | None = None,
-             env_workers: int | None = None) -> GridOutcome:
+             env_workers: int | None = None, dry_run: bool = False) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
     ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
@@ -319,6 +339,10 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
+    if dry_run:
+        print_plan(prepared, missing, store, workers or os.cpu_count() or 1)
+        return GridOutcome([load_run(p.directory(store)) for p in prepared if p not in missing],
+                           [], None)
     if executor == "ray":
         # Ray places one run per CPU and hands its tasks no GPU unless asked; all of a
         # node's runs on its GPU would also queue there (bench_gpu.json): CPUs it is
@@ -408,20 +432,30 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
                 out_dir: Path = Path("reports/fig3"), workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
                 address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None, batch: int | None = None) -> Path:
-    """Train the Fig. 3 grid (what is missing) and write its HTML report; return its path."""
+                gpu_workers: int | None = None, batch: int | None = None,
+                algos: list[str] | None = None, envs: list[str] | None = None,
+                dry_run: bool = False) -> Path | None:
+    """Train the Fig. 3 grid (what is missing; only the cells of ``algos`` x ``envs`` when
+    given) and write its HTML report from every run of the grid in the store; return its
+    path. ``dry_run``: print what would train, train and write nothing, return None."""
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
+    selected = select_cells(specs, algos, envs)
     waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
     specs = [s for s in specs if s not in waiting]
+    selected = [s for s in selected if s not in waiting]
     skipped += sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device,
-                       gpu_workers, batch)
-    outcome.skipped = skipped
+    outcome = train_cells(specs, selected, store, f"nox -s replicate-fig3 -- --profile {profile}",
+                          workers=workers, checkpoint_interval=checkpoint_interval,
+                          executor=executor, address=address, device=device,
+                          gpu_workers=gpu_workers, batch=batch, dry_run=dry_run)
+    if dry_run:
+        return None
+    outcome.skipped = skipped + outcome.skipped
     report = write_figure3_report(outcome, chosen, out_dir)
     if outcome.failed:
         raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "
@@ -433,6 +467,55 @@ def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
     """The complete runs of ``specs`` in the store (nothing is trained)."""
     directories = [prepare(spec).directory(store) for spec in specs]
     return [load_run(d) for d in directories if is_complete(d)]
+
+
+def stored_and_absent(specs: list[RunSpec], store: Path
+                      ) -> tuple[list[Run], list[RunSpec]]:
+    """The complete runs of ``specs`` in the store (in the order of ``specs``), and the specs
+    whose run is not there yet."""
+    runs, absent = [], []
+    for spec in specs:
+        directory = prepare(spec).directory(store)
+        if is_complete(directory):
+            runs.append(load_run(directory))
+        else:
+            absent.append(spec)
+    return runs, absent
+
+
+def absent_cell(spec: RunSpec, command: str) -> tuple[str, str, str]:
+    """A report's (env, algo, reason) line for a run not in the store yet."""
+    return (spec.env_id, spec.algo,
+            f"seed {spec.seed} not in the store yet (run `{command}` to train it)")
+
+
+def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
+                 ) -> list[RunSpec]:
+    """The specs of a grid whose algorithm is in ``algos`` and env in ``envs`` (None: any);
+    a name the grid does not have is a one-line error that lists the ones it has."""
+    for chosen, field, flag in ((algos, "algo", "--algos"), (envs, "env_id", "--envs")):
+        if chosen is None:
+            continue
+        have = sorted({getattr(s, field) for s in specs})
+        unknown = [name for name in chosen if name not in have]
+        if unknown:
+            raise HarnessError(f"{flag}: {', '.join(unknown)} not in this grid",
+                               f"choose from {', '.join(have)}")
+    return [s for s in specs if (algos is None or s.algo in algos)
+            and (envs is None or s.env_id in envs)]
+
+
+def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, command: str,
+                dry_run: bool = False, **grid_options: Any) -> GridOutcome:
+    """Train the ``chosen`` part of a grid (what is missing of it); the outcome holds every
+    complete run of the whole grid, and the cells outside ``chosen`` that are still absent
+    are listed, so a report written from it covers the whole grid."""
+    outcome = run_grid(chosen, store, dry_run=dry_run, **grid_options)
+    if len(chosen) == len(specs) or dry_run:
+        return outcome
+    outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
+    outcome.skipped = [absent_cell(spec, command) for spec in absent if spec not in chosen]
+    return outcome
 
 
 def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int,
@@ -495,18 +578,11 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
-    runs = []
-    for spec in specs:
-        directory = prepare(spec).directory(store)
-        if is_complete(directory):
-            runs.append(load_run(directory))
-        else:
-            skipped.append((spec.env_id, spec.algo,
-                            f"seed {spec.seed} not in the store yet (run `nox -s replicate-fig3 "
-                            f"-- --profile {profile}` to train it)"))
+    runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None
-    outcome = GridOutcome(runs, [], None, skipped)
+    command = f"nox -s replicate-fig3 -- --profile {profile}"
+    outcome = GridOutcome(runs, [], None, skipped + [absent_cell(s, command) for s in absent])
     return write_figure3_report(outcome, chosen, out_dir)
 
 

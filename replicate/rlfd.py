@@ -25,7 +25,7 @@ import numpy as np
 
 from replicate.errors import HarnessError
 from replicate.experiments import (T2_WAIT_REASON, algorithm_overrides, drl_eg_env_defaults,
-                                   run_grid, stored_runs, waits_for_t2_rule)
+                                   select_cells, stored_runs, train_cells, waits_for_t2_rule)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -263,17 +263,26 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> 
 def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
              out_dir: Path | None = None, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-             batch: int | None = None) -> Path:
-    """Train what the comparison lacks, then write its report; return the report's path."""
+             batch: int | None = None, algos: list[str] | None = None,
+             envs: list[str] | None = None, dry_run: bool = False) -> Path | None:
+    """Train what the comparison lacks (only the cells of ``algos`` x ``envs`` when given),
+    then write its report from every run of its grid in the store; return the report's
+    path. ``dry_run``: print what would train, train and write nothing, return None."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
+    selected = select_cells(specs, algos, envs)
     waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
     specs = [s for s in specs if s not in waiting]
+    selected = [s for s in selected if s not in waiting]
     skipped += sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = run_grid(specs, store, workers, checkpoint_interval, device=device, batch=batch)
-    outcome.skipped = skipped
+    outcome = train_cells(specs, selected, store, f"nox -s compare-rlfd -- --profile {profile}",
+                          dry_run=dry_run, workers=workers,
+                          checkpoint_interval=checkpoint_interval, device=device, batch=batch)
+    if dry_run:
+        return None
+    outcome.skipped = skipped + outcome.skipped
     report = write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
     if outcome.failed:
         raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "

@@ -102,3 +102,37 @@ def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3,
     assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
     assert "left as it is" in capsys.readouterr().out
     assert json.loads(summary_file.read_text()) == rebuilt
+
+
+def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3, tmp_path,
+                                                                     capsys):
+    import shutil
+
+    trained, _ = smoke_fig3
+    store, out = tmp_path / "runs", tmp_path / "report"
+    shutil.copytree(trained, store)
+    for algo in ("sac", "ppo"):  # two cells of the grid not trained yet
+        for run in store.glob(f"{algo}__*"):
+            shutil.rmtree(run)
+    before = sorted(p.name for p in store.iterdir())
+
+    capsys.readouterr()
+    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
+                 "--algos", "sac", "--dry-run"]) == 0
+    plan = capsys.readouterr().out
+    assert "2 to train" in plan and "sac" in plan and " ppo " not in plan
+    assert sorted(p.name for p in store.iterdir()) == before and not out.exists()
+
+    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
+                 "--algos", "sac", "--envs", "MountainCarContinuous-v0"]) == 0
+    assert len(list(store.glob("sac__*"))) == 2 and not list(store.glob("ppo__*"))
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) - 2  # every run of the grid
+    assert sorted((s["algo"], s["reason"][:6]) for s in summary["skipped"]) == \
+        [("ppo", "seed 0"), ("ppo", "seed 1")]
+
+    capsys.readouterr()
+    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--algos", "sax",
+                 "--dry-run"]) == 2
+    error = capsys.readouterr().err
+    assert "--algos: sax not in this grid" in error and "ppo-bc" in error

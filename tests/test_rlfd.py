@@ -49,10 +49,16 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
 
 
 @pytest.mark.slow
-def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path):
+def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "rlfd"
     args = ["compare-rlfd", "--profile", "smoke", "--seeds", "2", "--store", str(store),
             "--out", str(out), "--device", "cpu"]
+    assert main(args + ["--algos", "jsrl", "--dry-run"]) == 0
+    assert "jsrl" in capsys.readouterr().out and not store.exists() and not out.exists()
+    assert main(args + ["--algos", "jsrl"]) == 0  # one method first: the report says what lacks
+    partial = json.loads((out / "summary.json").read_text())
+    assert {c["algo"] for c in partial["cells"] if c["n"]} == {"jsrl"}
+    assert {s["algo"] for s in partial["skipped"]} == {"sac", "drl-eg", "ibrl", "rlpd", "ddpgfd"}
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert {c["algo"] for c in summary["cells"]} == {"sac", "drl-eg", "ibrl", "rlpd", "jsrl",
