@@ -214,7 +214,8 @@ DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
 
 
 def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
-    """Env steps per second per run, by (algorithm, env), from the store's finished runs."""
+    """Env steps per second of the process that trained each of the store's finished runs
+    (a seed batch's members' steps summed), averaged by (algorithm, env)."""
     rates: dict[tuple[str, str], list[float]] = {}
     if store.is_dir():
         for path in store.iterdir():
@@ -222,6 +223,7 @@ def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
                 run = load_run(path)
                 rate = run.provenance.get("env_steps_per_s")
                 if rate:
+                    rate *= (run.provenance.get("batch") or {}).get("size", 1)
                     rates.setdefault((run.spec["algo"], run.spec["env_id"]), []).append(rate)
     return {key: sum(values) / len(values) for key, values in rates.items()}
 
@@ -230,18 +232,20 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
                      workers: int) -> float:
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
-    store (the same algorithm elsewhere, else a guess). A batch is costed as one of its
-    runs: an estimate, since a batched run's recorded speed depends on its batch's size."""
+    store (the same algorithm elsewhere, else a guess). A process is taken to step as fast
+    whatever its batch's size: about so on CPU, where the products dominate; on a GPU a
+    larger batch is faster, so there this overestimates."""
     rates = _measured_rates(store)
     by_algo: dict[str, list[float]] = {}
     for (algo, _), rate in rates.items():
         by_algo.setdefault(algo, []).append(rate)
     seconds = 0.0
     for task in tasks:
-        p = task[0] if isinstance(task, list) else task
+        members = task if isinstance(task, list) else [task]
+        p = members[0]
         rate = rates.get((p.spec.algo, p.spec.env_id)) or (
             min(by_algo[p.spec.algo]) if p.spec.algo in by_algo else DEFAULT_STEPS_PER_S)
-        seconds += p.spec.total_steps / rate
+        seconds += sum(m.spec.total_steps for m in members) / rate
     return seconds / workers / 60
 
 

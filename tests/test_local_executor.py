@@ -93,3 +93,28 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
         os.kill(pid, signal.SIGKILL)
     assert not leftovers, f"processes outlived the killed figure process: {names}"
     assert list(tmp_path.glob(".partial-*/checkpoint.pt"))  # resumable, not discarded
+
+
+def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
+    import json
+
+    from replicate.experiments import estimate_minutes
+
+    def stored(name: str, rate: float, size: int | None) -> None:
+        run = tmp_path / name
+        run.mkdir()
+        (run / "spec.json").write_text(json.dumps({"algo": "sac", "env_id": MOUNTAINCAR}))
+        (run / "curve.csv").write_text("step,return_mean\n0,0\n")
+        batch = {"size": size} if size else {}
+        (run / "provenance.json").write_text(json.dumps({"env_steps_per_s": rate,
+                                                         "batch": batch}))
+
+    stored("sac__a", 30.0, 3)  # a member of a batch of 3: the process stepped 90/s
+    stored("sac__b", 90.0, None)  # one run per process at 90/s
+    one = prepare(RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=0, total_steps=5400,
+                          eval_interval=1800))
+    assert estimate_minutes([one], tmp_path, workers=1) == 1.0
+    batch = [prepare(RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=s, total_steps=5400,
+                             eval_interval=1800))
+             for s in range(2)]
+    assert estimate_minutes([batch], tmp_path, workers=1) == 2.0
