@@ -54,7 +54,6 @@ ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome 
 # on fewer seeds than Fig. 3: 3 seeds x 5 points x 2 envs is already 6M env steps at 200k.
 MUJOCO_ABLATION_ENVS = ("Ant-v5", "Walker2d-v5")
 MUJOCO_ABLATION_SEEDS = 3
-T2_SETTINGS = T2_RULE_SETTINGS
 RULE_PROFILE = "reduced"  # the budget whose ablation fixes the MuJoCo rule
 # Written before any reduced-budget ablation run had finished, and not to be changed after.
 T2_RULE_CRITERION = (
@@ -153,14 +152,14 @@ def sac_specs(profile: Profile, env_id: str, seeds: int) -> list[RunSpec]:
 
 
 def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, list[float]]]:
-    """For each setting of ``T2_SETTINGS`` and each MuJoCo ablation env, the normalised
+    """For each setting of ``T2_RULE_SETTINGS`` and each MuJoCo ablation env, the normalised
     area-under-the-curve gains of DRL-EG over SAC per seed (``T2_RULE_CRITERION``), from
     the stored runs of the sweep's seeds."""
     from replicate.demos import default_demo_path, load_demos
     from replicate.rlfd import random_return
 
     chosen = get_profile(profile)
-    gains: dict[str, dict[str, list[float]]] = {setting: {} for setting in T2_SETTINGS}
+    gains: dict[str, dict[str, list[float]]] = {setting: {} for setting in T2_RULE_SETTINGS}
     for env_id in MUJOCO_ABLATION_ENVS:
         if env_id not in chosen.steps or not default_demo_path(env_id).is_file():
             continue
@@ -169,7 +168,7 @@ def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, 
         if not sac:
             continue
         scale = load_demos(default_demo_path(env_id), env_id).mean_return - random_return(env_id)
-        for setting, threshold in zip(T2_SETTINGS, default_thresholds(profile, env_id)):
+        for setting, threshold in zip(T2_RULE_SETTINGS, default_thresholds(profile, env_id)):
             runs = stored_runs(ablation_specs(chosen, env_id, threshold,
                                               DEFAULT_GUIDE_NOISE_STD, MUJOCO_ABLATION_SEEDS),
                                store)
@@ -189,7 +188,7 @@ def choose_t2_rule(gains: dict[str, dict[str, list[float]]], rng: np.random.Gene
     env); the leader so far, and the choice once every setting has ``seeds`` seeds on every
     env (None before)."""
     rows = []
-    for setting in T2_SETTINGS:
+    for setting in T2_RULE_SETTINGS:
         per_env = gains.get(setting, {})
         row: dict[str, Any] = {
             "setting": setting,

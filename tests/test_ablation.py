@@ -119,11 +119,11 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
     import numpy as np
 
-    from replicate.ablation import T2_SETTINGS, choose_t2_rule
+    from replicate.ablation import T2_RULE_SETTINGS, choose_t2_rule
 
     envs = ("Ant-v5", "Walker2d-v5")
     gains = {setting: {"Ant-v5": [0.1 * i] * 3, "Walker2d-v5": [0.0, 0.1, 0.2]}
-             for i, setting in enumerate(T2_SETTINGS)}
+             for i, setting in enumerate(T2_RULE_SETTINGS)}
     gains["16x"] = {"Ant-v5": [0.5, 0.6, 0.7], "Walker2d-v5": [0.3, 0.2, 0.1]}  # mean 0.4
     rng = np.random.default_rng(0)
     choice = choose_t2_rule(gains, rng, envs, seeds=3)

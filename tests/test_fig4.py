@@ -62,7 +62,7 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
         return [prepare(s).run_id for s in specs]
 
     gmm_before = ant(figure3_grid(reduced)[0], "drl-eg-gmm")
-    for setting, threshold in zip(ablation.T2_SETTINGS, grid):
+    for setting, threshold in zip(ablation.T2_RULE_SETTINGS, grid):
         monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", setting)
         sweep = ablation.ablation_specs(reduced, "Ant-v5", threshold, 0.1, 3)
         # a ruled run is the ablation's run of that setting: same spec, same run id
