@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ast
-import json
 import os
-import shutil
 import sys
 from pathlib import Path
 
@@ -462,7 +460,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
                                     rebuild_threshold_ablation)
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
-    from replicate.report import runs_missing_for, summary_run_ids
+    from replicate.report import write_unless_fewer
     from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
 
@@ -485,34 +483,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if path is None:
             not_written.add(profile)
             return ""
-        missing = runs_missing_for(path, args.store)
-        if not missing:
-            written = build(path)
-            if written is None:
-                return f"{path}: no runs of the {profile} profile in {args.store}; left as it is"
-            return f"report: {written}"
-        # Some of the runs it names are gone (lost, or superseded by runs of a new spec): a
-        # report is never replaced by one built from fewer runs than it names.
-        trial = path.with_name(f".{path.name}.rebuild")
-        shutil.rmtree(trial, ignore_errors=True)
-        try:
-            written = build(trial)
-            before = len(summary_run_ids(json.loads((path / "summary.json").read_text())))
-            after = (len(summary_run_ids(json.loads((trial / "summary.json").read_text())))
-                     if written is not None else 0)
-            if after < before:
-                return (f"{path}: left as it is; {len(missing)} of the {before} runs it names "
-                        f"are not in {args.store} (e.g. {missing[0]}), and the store gives "
-                        f"{after}")
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)  # two renames: the report is never half old, half new
-            os.replace(trial, path)
-            shutil.rmtree(old, ignore_errors=True)
-        finally:
-            shutil.rmtree(trial, ignore_errors=True)
-        return (f"report: {path / 'index.html'} (from {after} runs; {len(missing)} of the "
-                f"{before} it named are no longer in {args.store})")
+        written, note = write_unless_fewer(path, args.store, build)
+        if written is None:
+            return note or (f"{path}: no runs of the {profile} profile in {args.store}; "
+                            "left as it is")
+        return f"report: {written}" + (f" ({note})" if note else "")
 
     not_written: set[str] = set()
 

@@ -14,7 +14,7 @@ import queue
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -213,7 +213,7 @@ def _task_ids(task: PreparedRun | list[PreparedRun]) -> list[str]:
 DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
 
 
-def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
+def measured_rates(store: Path) -> dict[tuple[str, str], float]:
     """Env steps per second of the process that trained each of the store's finished runs
     (a seed batch's members' steps summed), averaged by (algorithm, env)."""
     rates: dict[tuple[str, str], list[float]] = {}
@@ -229,13 +229,16 @@ def _measured_rates(store: Path) -> dict[tuple[str, str], float]:
 
 
 def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
-                     workers: int) -> float:
+                     workers: int,
+                     rates: dict[tuple[str, str], float] | None = None) -> float:
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
-    store (the same algorithm elsewhere, else a guess). A process is taken to step as fast
-    whatever its batch's size: about so on CPU, where the products dominate; on a GPU a
-    larger batch is faster, so there this overestimates."""
-    rates = _measured_rates(store)
+    store (the same algorithm elsewhere, else a guess; ``rates``: ``measured_rates(store)``
+    read already). A process is taken to step as fast whatever its batch's size and
+    wherever the runs trained: about so on CPU, where the products dominate; a GPU batch
+    steps faster the larger it is, so rates from large GPU batches make smaller batches and
+    single runs look faster than they are."""
+    rates = measured_rates(store) if rates is None else rates
     by_algo: dict[str, list[float]] = {}
     for (algo, _), rate in rates.items():
         by_algo.setdefault(algo, []).append(rate)
@@ -302,23 +305,32 @@ def batch_bytes(prepared: PreparedRun, members: int) -> int:
 
 
 def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-               workers: int) -> None:
+               workers: int, where: str = "local") -> None:
     """What a grid would train: its missing runs per env and algorithm, their env steps,
-    and the minutes they would take one run per process on ``workers`` (from the speeds
-    of the store's runs)."""
+    and the minutes they would take one run per process (from the speeds the store's runs
+    recorded), per cell in one process and in all on up to ``workers`` ``where`` workers."""
     cells: dict[tuple[str, str], list[PreparedRun]] = {}
     for p in missing:
         cells.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
     print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
           f"{len(missing)} to train; nothing is trained or written")
+    rates = measured_rates(store)
     for (env_id, algo), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
         steps = sum(p.spec.total_steps for p in runs)
         print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
-              f"~{estimate_minutes(runs, store, 1):,.0f} min on one core")
+              f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process")
     total = sum(p.spec.total_steps for p in missing)
-    print(f"  total {total:,} env steps: about {estimate_minutes(missing, store, workers):,.0f} "
-          f"min on {workers} worker(s), one run per process")
+    if where != "local":  # the cluster's size is not known without connecting to it
+        print(f"  total {total:,} env steps: about "
+              f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
+              f"{where} CPUs")
+        return
+    used = max(1, min(workers, len(missing)))
+    longest = max((estimate_minutes([p], store, 1, rates) for p in missing), default=0.0)
+    minutes = max(estimate_minutes(missing, store, used, rates), longest)
+    print(f"  total {total:,} env steps: about {minutes:,.0f} min on {used} local worker(s), "
+          "one run per process")
 
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
@@ -343,10 +355,6 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     store = Path(store)
     prepared = [prepare(spec) for spec in specs]  # all input errors surface before training
     missing = [p for p in prepared if not is_complete(p.directory(store))]
-    if dry_run:
-        print_plan(prepared, missing, store, workers or os.cpu_count() or 1)
-        return GridOutcome([load_run(p.directory(store)) for p in prepared if p not in missing],
-                           [], None)
     if executor == "ray":
         # Ray places one run per CPU and hands its tasks no GPU unless asked; all of a
         # node's runs on its GPU would also queue there (bench_gpu.json): CPUs it is
@@ -356,6 +364,12 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         if batch is not None:
             raise HarnessError("--batch is not supported with --executor ray",
                                "drop --batch, or train locally")
+    if dry_run:
+        resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
+        print_plan(prepared, missing, store, workers or os.cpu_count() or 1,
+                   "local" if executor == "local" else "the Ray cluster's")
+        return GridOutcome([], [], None)
+    if executor == "ray":
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
     try:  # at most this many batches share the GPU at once
         gpu_slots = worker_devices(device, workers or os.cpu_count() or 1,
@@ -446,24 +460,49 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
+    return train_and_report(
+        specs, skipped, profile, f"nox -s replicate-fig3 -- --profile {profile}", store,
+        out_dir, lambda outcome, out: write_figure3_report(outcome, chosen, out),
+        algos, envs, dry_run, workers=workers, checkpoint_interval=checkpoint_interval,
+        executor=executor, address=address, device=device, gpu_workers=gpu_workers,
+        batch=batch)
+
+
+def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
+                     command: str, store: Path, out_dir: Path,
+                     write: Callable[[GridOutcome, Path], Path],
+                     algos: list[str] | None = None, envs: list[str] | None = None,
+                     dry_run: bool = False, **grid_options: Any) -> Path | None:
+    """A figure command: train what its grid lacks (of the ``algos`` x ``envs`` cells when
+    given; cells that wait for the MuJoCo T2 rule never), then ``write(outcome, out_dir)``
+    its report from every run of the grid in the store, never over a report that names more
+    runs (``report.write_unless_fewer``). Returns the report (None: nothing written)."""
+    from replicate.report import write_unless_fewer
+
     selected = select_cells(specs, algos, envs)
     waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
     specs = [s for s in specs if s not in waiting]
-    selected = [s for s in selected if s not in waiting]
-    skipped += sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
+    chosen = [s for s in selected if s not in waiting]
+    if (algos or envs) and not chosen:
+        why = "; they wait for the MuJoCo T2 rule" if selected else ""
+        raise HarnessError(f"--algos/--envs: no cell of this grid to train there{why}",
+                           "choose other cells (`--dry-run` lists what is missing)")
+    skipped = skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = train_cells(specs, selected, store, f"nox -s replicate-fig3 -- --profile {profile}",
-                          workers=workers, checkpoint_interval=checkpoint_interval,
-                          executor=executor, address=address, device=device,
-                          gpu_workers=gpu_workers, batch=batch, dry_run=dry_run)
+    outcome = train_cells(specs, chosen, store, command, dry_run=dry_run, **grid_options)
     if dry_run:
         return None
     outcome.skipped = skipped + outcome.skipped
-    report = write_figure3_report(outcome, chosen, out_dir)
+    report, note = write_unless_fewer(Path(out_dir), Path(store),
+                                      lambda out: write(outcome, out))
+    if note:
+        print(note if report is None else f"{out_dir}: {note}")
     if outcome.failed:
-        raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "
-                           "lists them", "read the reasons there, fix, and run the same command")
+        where = (f"the report at {report} lists them" if report is not None else
+                 f"e.g. {outcome.failed[0][0]}: {outcome.failed[0][1]}")
+        raise HarnessError(f"{len(outcome.failed)} run(s) failed; {where}",
+                           "read the reasons, fix, and run the same command")
     return report
 
 

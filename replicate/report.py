@@ -5,12 +5,13 @@ from __future__ import annotations
 import base64
 import json
 import os
+import shutil
 import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import jinja2
 import numpy as np
@@ -187,6 +188,39 @@ def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
         return []
     summary = json.loads(summary_file.read_text())
     return [r for r in summary_run_ids(summary) if not (Path(store) / r / "curve.csv").is_file()]
+
+
+def write_unless_fewer(out_dir: Path, store: Path,
+                       build: Callable[[Path], Path | None]) -> tuple[Path | None, str | None]:
+    """Write a report with ``build(out_dir)``, unless ``out_dir`` already holds one that names
+    runs the store lacks (lost, superseded by runs of a new spec, or trained elsewhere): then
+    it is built aside and replaces the old one (two renames: never half old, half new) only
+    if it names at least as many runs. Returns the index written (None: nothing written) and,
+    when some of the old report's runs were missing, a line that says what happened."""
+    out_dir = Path(out_dir)
+    missing = runs_missing_for(out_dir, store)
+    if not missing:
+        return build(out_dir), None
+    trial = out_dir.with_name(f".{out_dir.name}.rebuild")
+    shutil.rmtree(trial, ignore_errors=True)
+    try:
+        written = build(trial)
+        before = len(summary_run_ids(json.loads((out_dir / "summary.json").read_text())))
+        after = (len(summary_run_ids(json.loads((trial / "summary.json").read_text())))
+                 if written is not None else 0)
+        if after < before:
+            return None, (f"{out_dir}: left as it is; {len(missing)} of the {before} runs it "
+                          f"names are not in {store} (e.g. {missing[0]}), and the store gives "
+                          f"{after}")
+        old = out_dir.with_name(f".{out_dir.name}.old")
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(out_dir, old)
+        os.replace(trial, out_dir)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(trial, ignore_errors=True)
+    return out_dir / "index.html", (f"from {after} runs; {len(missing)} of the {before} it "
+                                    f"named are no longer in {store}")
 
 
 def _atomic_write(path: Path, data: bytes) -> None:

@@ -24,8 +24,8 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (T2_WAIT_REASON, algorithm_overrides, drl_eg_env_defaults,
-                                   select_cells, stored_runs, train_cells, waits_for_t2_rule)
+from replicate.experiments import (absent_cell, algorithm_overrides, drl_eg_env_defaults,
+                                   stored_and_absent, train_and_report)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -270,24 +270,11 @@ def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Pat
     path. ``dry_run``: print what would train, train and write nothing, return None."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
-    selected = select_cells(specs, algos, envs)
-    waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
-    specs = [s for s in specs if s not in waiting]
-    selected = [s for s in selected if s not in waiting]
-    skipped += sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
-    for env_id, algo, reason in skipped:
-        print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = train_cells(specs, selected, store, f"nox -s compare-rlfd -- --profile {profile}",
-                          dry_run=dry_run, workers=workers,
-                          checkpoint_interval=checkpoint_interval, device=device, batch=batch)
-    if dry_run:
-        return None
-    outcome.skipped = skipped + outcome.skipped
-    report = write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
-    if outcome.failed:
-        raise HarnessError(f"{len(outcome.failed)} run(s) failed; the report at {report} "
-                           "lists them", "read the reasons there, fix, and run the same command")
-    return report
+    return train_and_report(
+        specs, skipped, profile, f"nox -s compare-rlfd -- --profile {profile}", store,
+        Path(out_dir or report_dir(profile, "rlfd")),
+        lambda outcome, out: write_rlfd_report(outcome, chosen, out), algos, envs, dry_run,
+        workers=workers, checkpoint_interval=checkpoint_interval, device=device, batch=batch)
 
 
 def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
@@ -296,13 +283,10 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
-    runs = stored_runs(specs, store)
+    runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None
-    have = {r.path.name for r in runs}
-    from replicate.runner import prepare
-
-    skipped += [(s.env_id, s.algo, f"seed {s.seed} not in the store yet") for s in specs
-                if prepare(s).run_id not in have]
+    command = f"nox -s compare-rlfd -- --profile {profile}"
+    skipped += [absent_cell(s, command) for s in absent]
     return write_rlfd_report(GridOutcome(runs, [], None, skipped), chosen,
                              Path(out_dir or report_dir(profile, "rlfd")))

@@ -131,8 +131,22 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3
     assert sorted((s["algo"], s["reason"][:6]) for s in summary["skipped"]) == \
         [("ppo", "seed 0"), ("ppo", "seed 1")]
 
+    # a store that holds only this machine's share never replaces a report naming more runs
+    share = tmp_path / "share"
+    share.mkdir()
+    for run in store.glob("sac__*"):
+        shutil.copytree(run, share / run.name)
+    capsys.readouterr()
+    assert main(["fig3", "--profile", "smoke", "--store", str(share), "--out", str(out),
+                 "--algos", "sac"]) == 0
+    assert "left as it is" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text()) == summary
+
     capsys.readouterr()
     assert main(["fig3", "--profile", "smoke", "--store", str(store), "--algos", "sax",
                  "--dry-run"]) == 2
     error = capsys.readouterr().err
     assert "--algos: sax not in this grid" in error and "ppo-bc" in error
+    assert main(["fig3", "--profile", "reduced", "--store", str(store), "--algos", "drl-eg",
+                 "--envs", "Ant-v5", "--dry-run"]) == 2  # (until the rule is set)
+    assert "wait for the MuJoCo T2 rule" in capsys.readouterr().err
