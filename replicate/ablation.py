@@ -438,7 +438,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
                           failed: list[tuple[str, str]], out_dir: Path,
                           t2_rule: dict[str, Any] | None = None) -> Path:
     from replicate import provenance
-    from replicate.report import _atomic_write
+    from replicate.report import _atomic_write, summary_bytes
 
     rng = np.random.default_rng(REPORT_SEED)
 
@@ -483,9 +483,10 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
     _atomic_write(out_dir / "index.html", html.encode())
     summary = {"profile": profile.name, "env_id": env_id, "spacing": spacing, "rows": rows,
                "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
+               "sac_runs": context["sac_runs"],
                "failed": [{"run_id": i, "reason": why} for i, why in failed],
                "t2_rule": t2_rule}
-    _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
 
 

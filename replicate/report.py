@@ -178,7 +178,8 @@ def summary_run_ids(summary: dict[str, Any]) -> list[str]:
         return [run for cell in summary["cells"] for run in cell["runs"]]
     if "runs" in summary:  # Fig. 3
         return [r["run_id"] for r in summary["runs"]]
-    return [run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
+    return ([run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
+            + summary.get("sac_runs", []))  # an ablation's SAC reference
 
 
 def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
@@ -221,6 +222,24 @@ def write_unless_fewer(out_dir: Path, store: Path,
         shutil.rmtree(trial, ignore_errors=True)
     return out_dir / "index.html", (f"from {after} runs; {len(missing)} of the {before} it "
                                     f"named are no longer in {store}")
+
+
+def summary_bytes(summary: dict[str, Any]) -> bytes:
+    """A report's ``summary.json``: strict JSON (what jq and browsers parse), so a number
+    that is not defined (no seed reached a threshold, a CI of one run) is written as null."""
+    def strict(value: Any) -> Any:
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, float) and not np.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {key: strict(v) for key, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [strict(v) for v in value]
+        return value
+
+    return (json.dumps(strict(summary), indent=2, default=float, allow_nan=False)
+            + "\n").encode()
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -296,7 +315,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "git_revisions": context["revisions"],
     }
     _atomic_write(out_dir / "summary.json",
-                  (json.dumps(summary, indent=2, default=float) + "\n").encode())
+                  summary_bytes(summary))
     return out_dir / "index.html"
 
 
@@ -353,5 +372,5 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
                "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed]}
     _atomic_write(out_dir / "summary.json",
-                  (json.dumps(summary, indent=2, default=float) + "\n").encode())
+                  summary_bytes(summary))
     return out_dir / "index.html"

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import json
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -224,7 +223,7 @@ def _figure(aggregate: dict[str, Any]) -> bytes:
 
 def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> Path:
     from replicate import provenance
-    from replicate.report import _atomic_write
+    from replicate.report import _atomic_write, summary_bytes
 
     budgets = RLFD_BUDGETS[profile.name]
     result = compare(outcome.runs, budgets, np.random.default_rng(REPORT_SEED))
@@ -256,7 +255,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> 
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "git_revisions": context["revisions"],
     }
-    _atomic_write(out_dir / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
 
 

@@ -54,3 +54,20 @@ def test_a_committed_report_rebuilds_from_the_committed_runs(report, tmp_path):
         committed.pop(key, None)
         rebuilt.pop(key, None)
     assert rebuilt == committed
+
+
+def _no_constants(name: str):
+    raise ValueError(f"{name} is not JSON")
+
+
+def test_summaries_are_strict_json():
+    import numpy as np
+
+    from replicate.report import summary_bytes
+
+    written = summary_bytes({"reach": float("nan"), "values": [np.float64(1.5), np.int64(2)],
+                             "ci": (float("inf"), -1.0)})
+    assert json.loads(written, parse_constant=_no_constants) == {
+        "reach": None, "values": [1.5, 2], "ci": [None, -1.0]}
+    for report in _committed():  # what jq and a browser's JSON.parse accept
+        json.loads((report / "summary.json").read_text(), parse_constant=_no_constants)
