@@ -468,6 +468,16 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
         batch=batch)
 
 
+def without_waiting(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str
+                    ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+    """A grid less its cells that wait for the MuJoCo T2 rule, those listed as skipped: a
+    report never shows them, even where the store holds runs of the same spec (the
+    ablation's 1x point is one)."""
+    waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
+    return ([s for s in specs if s not in waiting],
+            skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting}))
+
+
 def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
                      command: str, store: Path, out_dir: Path,
                      write: Callable[[GridOutcome, Path], Path],
@@ -480,14 +490,12 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
     from replicate.report import write_unless_fewer
 
     selected = select_cells(specs, algos, envs)
-    waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
-    specs = [s for s in specs if s not in waiting]
-    chosen = [s for s in selected if s not in waiting]
+    specs, skipped = without_waiting(specs, skipped, profile)
+    chosen = [s for s in selected if s in specs]
     if (algos or envs) and not chosen:
         why = "; they wait for the MuJoCo T2 rule" if selected else ""
         raise HarnessError(f"--algos/--envs: no cell of this grid to train there{why}",
                            "choose other cells (`--dry-run` lists what is missing)")
-    skipped = skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting})
     for env_id, algo, reason in skipped:
         print(f"skipped {algo} on {env_id}: {reason}")
     outcome = train_cells(specs, chosen, store, command, dry_run=dry_run, **grid_options)
@@ -620,7 +628,7 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
-    specs, skipped = figure3_grid(chosen, seeds)
+    specs, skipped = without_waiting(*figure3_grid(chosen, seeds), profile)
     runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None

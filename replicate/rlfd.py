@@ -24,7 +24,8 @@ import numpy as np
 
 from replicate.errors import HarnessError
 from replicate.experiments import (absent_cell, algorithm_overrides, drl_eg_env_defaults,
-                                   stored_and_absent, train_and_report)
+                                   stored_and_absent, train_and_report,
+                                   without_waiting)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -281,7 +282,7 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     """The report from the store alone; None (nothing written) when it holds none of the
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
-    specs, skipped = rlfd_grid(chosen, seeds)
+    specs, skipped = without_waiting(*rlfd_grid(chosen, seeds), profile)
     runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None

@@ -71,3 +71,14 @@ def test_summaries_are_strict_json():
         "reach": None, "values": [1.5, 2], "ci": [None, -1.0]}
     for report in _committed():  # what jq and a browser's JSON.parse accept
         json.loads((report / "summary.json").read_text(), parse_constant=_no_constants)
+
+
+def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
+    from replicate import experiments
+
+    if experiments.MUJOCO_T2_RULE is not None:
+        pytest.skip("the rule is set")
+    # the store holds the ablation's 1x runs, whose spec is the spacing rule's: not shown
+    summary = json.loads((ROOT / "reports" / "reduced" / "fig3" / "summary.json").read_text())
+    assert not [f for f in summary["final_returns"] if f["algo"] in experiments.T2_ALGORITHMS
+                and f["env_id"] in experiments.MUJOCO_ENVS]
