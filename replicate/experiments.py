@@ -516,8 +516,7 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
 
 def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
     """The complete runs of ``specs`` in the store (nothing is trained)."""
-    directories = [prepare(spec).directory(store) for spec in specs]
-    return [load_run(d) for d in directories if is_complete(d)]
+    return stored_and_absent(specs, store)[0]
 
 
 def stored_and_absent(specs: list[RunSpec], store: Path
@@ -538,6 +537,18 @@ def absent_cell(spec: RunSpec, command: str) -> tuple[str, str, str]:
     """A report's (env, algo, reason) line for a run not in the store yet."""
     return (spec.env_id, spec.algo,
             f"seed {spec.seed} not in the store yet (run `{command}` to train it)")
+
+
+def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
+                   store: Path, command: str) -> GridOutcome | None:
+    """A grid's outcome from the store alone, for a rebuilt report: its complete runs, the
+    cells that wait for the T2 rule and the runs not there yet listed as skipped; None when
+    the store holds none of its runs."""
+    specs, skipped = without_waiting(specs, skipped, profile)
+    runs, absent = stored_and_absent(specs, store)
+    if not runs:
+        return None
+    return GridOutcome(runs, [], None, skipped + [absent_cell(s, command) for s in absent])
 
 
 def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
@@ -628,13 +639,9 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
-    specs, skipped = without_waiting(*figure3_grid(chosen, seeds), profile)
-    runs, absent = stored_and_absent(specs, store)
-    if not runs:
-        return None
-    command = f"nox -s replicate-fig3 -- --profile {profile}"
-    outcome = GridOutcome(runs, [], None, skipped + [absent_cell(s, command) for s in absent])
-    return write_figure3_report(outcome, chosen, out_dir)
+    outcome = stored_outcome(*figure3_grid(chosen, seeds), profile, store,
+                             f"nox -s replicate-fig3 -- --profile {profile}")
+    return None if outcome is None else write_figure3_report(outcome, chosen, out_dir)
 
 
 FIG4_ENV = "Ant-v5"

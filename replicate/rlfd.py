@@ -23,9 +23,8 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (absent_cell, algorithm_overrides, drl_eg_env_defaults,
-                                   stored_and_absent, train_and_report,
-                                   without_waiting)
+from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults, stored_outcome,
+                                   train_and_report)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -282,11 +281,8 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     """The report from the store alone; None (nothing written) when it holds none of the
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
-    specs, skipped = without_waiting(*rlfd_grid(chosen, seeds), profile)
-    runs, absent = stored_and_absent(specs, store)
-    if not runs:
+    outcome = stored_outcome(*rlfd_grid(chosen, seeds), profile, store,
+                             f"nox -s compare-rlfd -- --profile {profile}")
+    if outcome is None:
         return None
-    command = f"nox -s compare-rlfd -- --profile {profile}"
-    skipped += [absent_cell(s, command) for s in absent]
-    return write_rlfd_report(GridOutcome(runs, [], None, skipped), chosen,
-                             Path(out_dir or report_dir(profile, "rlfd")))
+    return write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
