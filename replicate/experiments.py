@@ -461,7 +461,7 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
     return train_and_report(
-        specs, skipped, profile, f"nox -s replicate-fig3 -- --profile {profile}", store,
+        specs, skipped, profile, figure3_command(profile), store,
         out_dir, lambda outcome, out: write_figure3_report(outcome, chosen, out),
         algos, envs, dry_run, workers=workers, checkpoint_interval=checkpoint_interval,
         executor=executor, address=address, device=device, gpu_workers=gpu_workers,
@@ -629,6 +629,11 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
     return GridOutcome(runs, failed, time.time() - started)
 
 
+def figure3_command(profile: str) -> str:
+    """The command that trains the Fig. 3 grid at ``profile`` (named beside missing cells)."""
+    return f"nox -s replicate-fig3 -- --profile {profile}"
+
+
 def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
                     store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")
                     ) -> Path | None:
@@ -640,7 +645,7 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
 
     chosen = get_profile(profile)
     outcome = stored_outcome(*figure3_grid(chosen, seeds), profile, store,
-                             f"nox -s replicate-fig3 -- --profile {profile}")
+                             figure3_command(profile))
     return None if outcome is None else write_figure3_report(outcome, chosen, out_dir)
 
 

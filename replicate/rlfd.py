@@ -270,10 +270,15 @@ def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Pat
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
     return train_and_report(
-        specs, skipped, profile, f"nox -s compare-rlfd -- --profile {profile}", store,
+        specs, skipped, profile, rlfd_command(profile), store,
         Path(out_dir or report_dir(profile, "rlfd")),
         lambda outcome, out: write_rlfd_report(outcome, chosen, out), algos, envs, dry_run,
         workers=workers, checkpoint_interval=checkpoint_interval, device=device, batch=batch)
+
+
+def rlfd_command(profile: str) -> str:
+    """The command that trains the comparison's grid at ``profile``."""
+    return f"nox -s compare-rlfd -- --profile {profile}"
 
 
 def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
@@ -281,8 +286,7 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     """The report from the store alone; None (nothing written) when it holds none of the
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
-    outcome = stored_outcome(*rlfd_grid(chosen, seeds), profile, store,
-                             f"nox -s compare-rlfd -- --profile {profile}")
+    outcome = stored_outcome(*rlfd_grid(chosen, seeds), profile, store, rlfd_command(profile))
     if outcome is None:
         return None
     return write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
