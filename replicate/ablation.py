@@ -398,6 +398,8 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     import matplotlib.pyplot as plt
     import seaborn as sns
 
+    from replicate.figures import format_steps_axis
+
     sns.set_theme(style="whitegrid", context="notebook")
     first_sigma = min((c.sigma for c in cells), default=0.0)
     shown = [c for c in cells if c.sigma == first_sigma and c.runs]
@@ -410,9 +412,9 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     if sac_runs:
         left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
                   label="SAC")
-    left.set_xlabel("env steps")
+    format_steps_axis(left)
     left.set_ylabel("evaluation return (mean over seeds)")
-    right.set_xlabel("env steps")
+    format_steps_axis(right)
     right.set_ylabel("guided share of training steps")
     right.set_ylim(-0.02, 1.02)
     left.legend(fontsize=7)

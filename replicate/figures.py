@@ -9,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")  # no display is ever needed
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
@@ -27,17 +28,41 @@ class CurveBand:
     n_runs: int
 
 
+def steps_label(steps: float) -> str:
+    """An env-step count as a short tick label: 0, 50k, 200k, 1M, 1.5M."""
+    if abs(steps) >= 1_000_000:
+        return f"{steps / 1_000_000:g}M"
+    if abs(steps) >= 1000:
+        return f"{steps / 1000:g}k"
+    return f"{steps:g}"
+
+
+def format_steps_axis(ax) -> None:
+    """Label ``ax``'s x axis in env steps with short ticks (50k, not 50000), which stay
+    apart on narrow panels."""
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: steps_label(value)))
+    ax.set_xlabel("env steps")
+
+
+def panel_order(envs: list[str], env_order: list[str]) -> list[str]:
+    """The distinct ``envs`` in ``env_order``'s order, those it lacks after them as they
+    come."""
+    present = list(dict.fromkeys(envs))
+    return [e for e in env_order if e in present] + [e for e in present if e not in env_order]
+
+
 def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float],
                         title: str,
-                        reference_points: dict[str, list[tuple[int, float, float]]] | None = None
-                        ) -> bytes:
+                        reference_points: dict[str, list[tuple[int, float, float]]] | None = None,
+                        env_order: list[str] | None = None) -> bytes:
     """One panel per env, one line per algorithm (mean) with a shaded 95% CI band.
 
     ``reference_lines`` maps env id to the demonstrations' mean return, drawn dashed;
-    ``reference_points`` to published SAC's (steps, mean, sd), drawn as points with bars.
+    ``reference_points`` to published SAC's (steps, mean, sd), drawn as points with bars;
+    ``env_order`` orders the panels (the paper's order), envs it lacks going last.
     """
     sns.set_theme(style="whitegrid", context="notebook")
-    envs = list(dict.fromkeys(b.env_id for b in bands))
+    envs = panel_order([b.env_id for b in bands], env_order or [])
     algos = list(dict.fromkeys(b.algo for b in bands))
     palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
     fig, axes = plt.subplots(1, len(envs), figsize=(5.2 * len(envs), 3.8), squeeze=False)
@@ -62,6 +87,7 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
             ax.errorbar(xs, ys, yerr=sds, fmt="D", color="0.15", markersize=4, capsize=2,
                         linewidth=0.8, label="published SAC (Tianshou, -v3)")
         ax.set_title(env_id)
+        format_steps_axis(ax)
         ax.legend(fontsize=8, loc="best")
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
@@ -126,7 +152,7 @@ def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, np.nda
         for algo, (steps, returns) in sorted(curves.items()):
             ax.plot(steps, returns, color=palette[algo], label=algo, linewidth=1.8)
         ax.set_title(f"seed {seed}")
-        ax.set_xlabel("env steps")
+        format_steps_axis(ax)
         ax.set_ylabel("return")
         ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=11)

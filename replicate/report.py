@@ -272,8 +272,9 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
     points = {env_id: [(p.steps, p.mean, p.std) for p in published_points(env_id, steps)
                        if p.source == "tianshou"]
               for env_id, steps in profile.steps.items() if env_id in {b.env_id for b in bands}}
-    figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title,
-                                                   points)).decode() if bands else None)
+    figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title, points,
+                                                   list(profile.steps))).decode()
+              if bands else None)
     revisions = sorted({r.provenance["git_revision"] for r in runs})
     first = runs[0].provenance if runs else {}
     budgets = [{"env_id": env_id, "steps": profile.steps[env_id],
