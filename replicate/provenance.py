@@ -27,19 +27,26 @@ def package_versions() -> dict[str, str]:
 
 
 def git_revision() -> str:
-    """The commit of the code that ran, with '+dirty' when the tree had uncommitted changes."""
-    here = Path(__file__).resolve().parent
-    for where in (here, Path.cwd()):
+    """The commit of the code that ran (``revision_at`` the package's checkout, else the
+    working directory's), "unknown" outside git."""
+    for where in (Path(__file__).resolve().parent, Path.cwd()):
         try:
-            rev = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"],
-                                 capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-            dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
-                                    "--untracked-files=no"],
-                                   capture_output=True, text=True, timeout=10).stdout.strip()
-            return rev + ("+dirty" if dirty else "")
+            return revision_at(where)
         except (OSError, subprocess.SubprocessError):
             continue
     return "unknown"
+
+
+def revision_at(where: Path) -> str:
+    """The commit checked out at ``where``, with '+dirty' when tracked files changed outside
+    the run store and the reports (what the harness itself writes is not code)."""
+    rev = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"],
+                         capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
+                            "--untracked-files=no", "--", ":(top)", ":(top,exclude)runs",
+                            ":(top,exclude)reports"],
+                           capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    return rev + ("+dirty" if dirty else "")
 
 
 @functools.cache

@@ -1,0 +1,26 @@
+"""A run's recorded git revision is dirty for changed code, not for runs or reports."""
+
+import subprocess
+
+from replicate.provenance import revision_at
+
+
+def _git(where, *args):
+    subprocess.run(["git", "-C", str(where), *args], check=True, capture_output=True)
+
+
+def test_revision_is_dirty_for_code_changes_only(tmp_path):
+    for name in ("replicate/code.py", "runs/r/curve.csv", "reports/fig3/summary.json"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("0\n")
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "one")
+    head = subprocess.run(["git", "-C", str(tmp_path), "rev-parse", "HEAD"], check=True,
+                          capture_output=True, text=True).stdout.strip()
+    (tmp_path / "runs/r/curve.csv").write_text("1\n")
+    (tmp_path / "reports/fig3/summary.json").write_text("1\n")
+    (tmp_path / "replicate/untracked.py").write_text("1\n")
+    assert revision_at(tmp_path / "replicate") == head  # asked from a subfolder, as the package does
+    (tmp_path / "replicate/code.py").write_text("1\n")
+    assert revision_at(tmp_path / "runs") == head + "+dirty"
