@@ -91,6 +91,47 @@ def waits_for_t2_rule(profile: str, env_id: str, algo: str) -> bool:
     return MUJOCO_T2_RULE is None and takes_t2_rule(profile, env_id, algo)
 
 
+def t2_source(profile: str, env_id: str, algo: str) -> str:
+    """Where a DRL-EG run's T2 at ``profile`` on ``env_id`` comes from, in one sentence."""
+    if algo == "drl-eg-gmm":
+        return "unused: the GMM variant gates on a density quantile of the demonstrations"
+    if env_id in DRL_EG_ENV_DEFAULTS:
+        return ("the harness's value for this env (the paper gives none; the MountainCar "
+                "threshold ablation, reports/ablate-threshold, sweeps it)")
+    spacing = "the median spacing of the demonstration states"
+    if not takes_t2_rule(profile, env_id, algo):
+        return f"{spacing} (the spacing rule, 1x)"
+    if MUJOCO_T2_RULE is None:
+        return "none yet: " + T2_WAIT_REASON
+    rule = ("always-guide" if MUJOCO_T2_RULE == "always"
+            else f"{MUJOCO_T2_RULE[:-1]} times {spacing}")
+    return (f"the MuJoCo rule {MUJOCO_T2_RULE} ({rule}), chosen by the threshold ablation on "
+            "Ant-v5 and Walker2d-v5 before any Fig. 3 or Fig. 4 MuJoCo run of DRL-EG "
+            "(reports/reduced/ablate-threshold-ant, -walker2d)")
+
+
+def guidance_settings(profile: str, runs: list[Run], specs: list[RunSpec] = ()
+                      ) -> list[dict[str, Any]]:
+    """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
+    trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
+    comes from (``t2_source``). What a report prints beside the claims it judges."""
+    used: dict[tuple[str, str], set[tuple[float, float]]] = {}
+    for spec in list(specs) + [r.spec for r in runs]:
+        spec = spec if isinstance(spec, dict) else spec.to_dict()
+        if spec["algo"].startswith("drl-eg"):
+            used.setdefault((spec["env_id"], spec["algo"]), set())
+    for run in runs:
+        key = (run.spec["env_id"], run.spec["algo"])
+        if key in used:
+            hyper = run.spec["hyperparameters"]
+            used[key].add((hyper.get("guide_threshold"), hyper.get("guide_noise_std")))
+    return [{"env_id": env_id, "algo": algo, "uses_t2": algo != "drl-eg-gmm",
+             "t2": sorted({t for t, _ in values if t is not None and algo != "drl-eg-gmm"}),
+             "sigma": sorted({n for _, n in values if n is not None}),
+             "source": t2_source(profile, env_id, algo)}
+            for (env_id, algo), values in used.items()]
+
+
 T2_WAIT_REASON = ("waits for the MuJoCo T2 rule, fixed from `nox -s ablate-threshold -- "
                   "--profile reduced --env Ant-v5` (and Walker2d-v5) before these runs train")
 
@@ -461,8 +502,9 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
     return train_and_report(
-        specs, skipped, profile, figure3_command(profile), store,
-        out_dir, lambda outcome, out: write_figure3_report(outcome, chosen, out),
+        specs, skipped, profile, figure3_command(profile), store, out_dir,
+        lambda outcome, out: write_figure3_report(
+            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs)),
         algos, envs, dry_run, workers=workers, checkpoint_interval=checkpoint_interval,
         executor=executor, address=address, device=device, gpu_workers=gpu_workers,
         batch=batch)
@@ -644,9 +686,12 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
     from replicate.report import write_figure3_report
 
     chosen = get_profile(profile)
-    outcome = stored_outcome(*figure3_grid(chosen, seeds), profile, store,
-                             figure3_command(profile))
-    return None if outcome is None else write_figure3_report(outcome, chosen, out_dir)
+    specs, skipped = figure3_grid(chosen, seeds)
+    outcome = stored_outcome(specs, skipped, profile, store, figure3_command(profile))
+    if outcome is None:
+        return None
+    return write_figure3_report(outcome, chosen, out_dir,
+                                guidance_settings(profile, outcome.runs, specs))
 
 
 FIG4_ENV = "Ant-v5"
@@ -686,11 +731,13 @@ def rebuild_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int |
     from replicate.report import write_figure4_report
 
     chosen = get_profile(profile)
-    runs = stored_runs(figure4_grid(chosen, env_id, seeds), Path(store))
+    specs = figure4_grid(chosen, env_id, seeds)
+    runs = stored_runs(specs, Path(store))
     if not runs:
         return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_figure4_report(GridOutcome(runs, [], None), chosen, env_id, out_dir)
+    return write_figure4_report(GridOutcome(runs, [], None), chosen, env_id, out_dir,
+                                guidance_settings(profile, runs, specs))
 
 
 def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
@@ -707,7 +754,9 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
         raise HarnessError(f"Fig. 4 on {env_id} at the {profile} budget {T2_WAIT_REASON}",
                            "run the ablation first, then fix MUJOCO_T2_RULE in "
                            "replicate/experiments.py (README: T2 on MuJoCo)")
-    outcome = run_grid(figure4_grid(chosen, env_id, seeds), store, workers, checkpoint_interval,
-                       executor, address, device, gpu_workers, batch)
+    specs = figure4_grid(chosen, env_id, seeds)
+    outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device,
+                       gpu_workers, batch)
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_figure4_report(outcome, chosen, env_id, out_dir)
+    return write_figure4_report(outcome, chosen, env_id, out_dir,
+                                guidance_settings(profile, outcome.runs, specs))

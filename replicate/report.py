@@ -251,8 +251,10 @@ def _atomic_write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> Path:
-    """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``."""
+def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
+                         guidance: list[dict[str, Any]] | None = None) -> Path:
+    """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
+    ``guidance`` (``experiments.guidance_settings``) is printed beside the claims."""
     rng = np.random.default_rng(REPORT_SEED)
     runs = outcome.runs
     bands, finals = summarise(runs, rng) if runs else ([], [])
@@ -294,6 +296,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
         "grid_wall_s": outcome.wall_time_s, "confidence": CONFIDENCE,
         "efficiency": efficiency, "published": published, "reach_fraction": REACH_FRACTION,
+        "guidance": guidance or [],
     }
     env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
                              autoescape=jinja2.select_autoescape(["html"]),
@@ -312,7 +315,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "aggregate": None if aggregate is None else {
             k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
-        "efficiency": efficiency, "published_sac": published,
+        "efficiency": efficiency, "published_sac": published, "guidance": guidance or [],
         "git_revisions": context["revisions"],
     }
     _atomic_write(out_dir / "summary.json",
@@ -321,7 +324,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path) 
 
 
 def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
-                         out_dir: Path) -> Path:
+                         out_dir: Path, guidance: list[dict[str, Any]] | None = None) -> Path:
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
     from replicate.claims import ANT, claim_5
@@ -363,6 +366,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "steps": int(outcome.runs[0].spec["total_steps"]) if outcome.runs else 0,
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
+        "guidance": guidance or [],
     }
     env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
                              autoescape=jinja2.select_autoescape(["html"]),
@@ -371,6 +375,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
     summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
                "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
+               "guidance": guidance or [],
                "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed]}
     _atomic_write(out_dir / "summary.json",
                   summary_bytes(summary))

@@ -23,8 +23,8 @@ import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults, stored_outcome,
-                                   train_and_report)
+from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults,
+                                   guidance_settings, stored_outcome, train_and_report)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -221,7 +221,10 @@ def _figure(aggregate: dict[str, Any]) -> bytes:
     return png_bytes(fig)
 
 
-def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> Path:
+def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
+                      guidance: list[dict[str, Any]] | None = None) -> Path:
+    """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
+    ``guidance`` (``experiments.guidance_settings``) is printed beside the verdicts."""
     from replicate import provenance
     from replicate.report import _atomic_write, summary_bytes
 
@@ -234,7 +237,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> 
         "figure_png_b64": base64.b64encode(_figure(aggregate)).decode() if aggregate else None,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "failed": outcome.failed, "skipped": outcome.skipped,
-        "random_episodes": RANDOM_EPISODES,
+        "random_episodes": RANDOM_EPISODES, "guidance": guidance or [],
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
@@ -248,7 +251,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path) -> 
         "profile": profile.name, "generated": context["generated"],
         "budgets": {t: list(b) for t, b in budgets.items()},
         "reference": result["reference"], "cells": result["cells"],
-        "verdicts": result["verdicts"],
+        "verdicts": result["verdicts"], "guidance": guidance or [],
         "aggregate": None if aggregate is None else {
             k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
@@ -272,7 +275,9 @@ def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Pat
     return train_and_report(
         specs, skipped, profile, rlfd_command(profile), store,
         Path(out_dir or report_dir(profile, "rlfd")),
-        lambda outcome, out: write_rlfd_report(outcome, chosen, out), algos, envs, dry_run,
+        lambda outcome, out: write_rlfd_report(
+            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs)),
+        algos, envs, dry_run,
         workers=workers, checkpoint_interval=checkpoint_interval, device=device, batch=batch)
 
 
@@ -286,7 +291,9 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     """The report from the store alone; None (nothing written) when it holds none of the
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
-    outcome = stored_outcome(*rlfd_grid(chosen, seeds), profile, store, rlfd_command(profile))
+    specs, skipped = rlfd_grid(chosen, seeds)
+    outcome = stored_outcome(specs, skipped, profile, store, rlfd_command(profile))
     if outcome is None:
         return None
-    return write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")))
+    return write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")),
+                             guidance_settings(profile, outcome.runs, specs))

@@ -6,7 +6,7 @@ import re
 import numpy as np
 
 from replicate.cli import main
-from replicate.experiments import FIG3_ALGORITHMS
+from replicate.experiments import DRL_EG_ENV_DEFAULTS, FIG3_ALGORITHMS
 
 
 def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
@@ -27,6 +27,12 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     for label in ("DRL-EG", "SAC", "PPO", "PPO+BC", "DDPGfD"):
         assert label in checks
     assert all(len(f["finals"]) == 2 for f in summary["final_returns"])
+    # the ledger names the T2 each DRL-EG cell trained with, read from its runs' specs
+    assert 'id="guidance"' in html
+    guidance = {g["algo"]: g for g in summary["guidance"]}
+    assert guidance["drl-eg"]["t2"] == [
+        DRL_EG_ENV_DEFAULTS["MountainCarContinuous-v0"]["guide_threshold"]]
+    assert guidance["drl-eg-gmm"]["t2"] == [] and not guidance["drl-eg-gmm"]["uses_t2"]
 
     # a second invocation trains nothing and rebuilds the same numbers from the store
     capsys.readouterr()

@@ -15,6 +15,7 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     assert summary["paired"] is not None and summary["claim"] is None  # claim 5 is about Ant
     html = (out / "index.html").read_text()
     assert "data:image/png;base64," in html and 'id="smoke-warning"' in html
+    assert 'id="guidance"' in html and summary["guidance"][0]["t2"] == [0.05]
 
 
 def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, monkeypatch):
@@ -76,3 +77,24 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "2x")  # not a setting of the sweep
     with pytest.raises(HarnessError, match="not a setting of the ablation"):
         figure3_grid(reduced)
+
+
+def test_reports_name_where_each_t2_comes_from(monkeypatch):
+    from types import SimpleNamespace
+
+    from replicate import experiments
+    from replicate.experiments import figure3_grid, get_profile, guidance_settings
+
+    specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]
+    rows = {g["algo"]: g for g in guidance_settings("reduced", [], specs)}
+    assert set(rows) == {"drl-eg", "drl-eg-gmm"} and rows["drl-eg"]["t2"] == []
+    assert rows["drl-eg"]["source"].startswith("none yet: waits for the MuJoCo T2 rule")
+    assert rows["drl-eg-gmm"]["source"].startswith("unused")
+    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "16x")
+    run = SimpleNamespace(spec={"algo": "drl-eg", "env_id": "Ant-v5", "hyperparameters": {
+        "guide_threshold": 36.3, "guide_noise_std": 0.1}})
+    rows = {g["algo"]: g for g in guidance_settings("reduced", [run], specs)}
+    assert rows["drl-eg"]["t2"] == [36.3] and rows["drl-eg"]["sigma"] == [0.1]
+    assert "rule 16x (16 times the median spacing" in rows["drl-eg"]["source"]
+    quick = guidance_settings("quick", [run])
+    assert quick[0]["source"].endswith("(the spacing rule, 1x)")

@@ -67,6 +67,7 @@ def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, ca
     assert len(summary["verdicts"]) == 5
     html = (out / "index.html").read_text()
     assert 'id="smoke-warning"' in html and "data:image/png;base64," in html
+    assert 'id="guidance"' in html and [g["t2"] for g in summary["guidance"]] == [[0.05]]
     from replicate.rlfd import rebuild_rlfd
 
     rebuilt = rebuild_rlfd("smoke", store, tmp_path / "again")
