@@ -9,6 +9,7 @@
 # and commit); checkpoints are off because none could come back.
 # usage: benchmarks/gpu_reduced_sitting.sh SECONDS OUTDIR
 set -u
+: "${2:?usage: benchmarks/gpu_reduced_sitting.sh SECONDS OUTDIR}"
 if [ "$1" = --jobs ]; then  # the sitting's command: every job at once, stopped together
     out=$2 python=${PYTHON:-python3}
     trap 'kill $(jobs -p) 2>/dev/null' TERM
@@ -18,8 +19,9 @@ if [ "$1" = --jobs ]; then  # the sitting's command: every job at once, stopped 
     done
     "$python" -m replicate fig3 --profile reduced --algos ppo ppo-bc --workers 6 \
         --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" > "$out/fig3-ppo.log" 2>&1 &
-    wait
-    exit
+    status=0
+    for job in $(jobs -p); do wait "$job" || status=$?; done
+    exit $status  # the last failure's, so that sitting.log does not say 0 over a failed job
 fi
 seconds=$1 out=$2
 exec "$(dirname "$0")/device_sitting.sh" "$seconds" "$out" "$0" --jobs "$out"

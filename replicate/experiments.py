@@ -93,7 +93,7 @@ def waits_for_t2_rule(profile: str, env_id: str, algo: str) -> bool:
 
 def t2_source(profile: str, env_id: str, algo: str) -> str:
     """Where a DRL-EG run's T2 at ``profile`` on ``env_id`` comes from, in one sentence."""
-    if algo == "drl-eg-gmm":
+    if algo not in T2_ALGORITHMS:
         return "unused: the GMM variant gates on a density quantile of the demonstrations"
     if env_id in DRL_EG_ENV_DEFAULTS:
         return ("the harness's value for this env (the paper gives none; the MountainCar "
@@ -115,21 +115,26 @@ def guidance_settings(profile: str, runs: list[Run], specs: list[RunSpec] = ()
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
     comes from (``t2_source``). What a report prints beside the claims it judges."""
-    used: dict[tuple[str, str], set[tuple[float, float]]] = {}
+    used: dict[tuple[str, str], list[tuple[float | None, float | None]]] = {}
     for spec in list(specs) + [r.spec for r in runs]:
         spec = spec if isinstance(spec, dict) else spec.to_dict()
         if spec["algo"].startswith("drl-eg"):
-            used.setdefault((spec["env_id"], spec["algo"]), set())
+            used.setdefault((spec["env_id"], spec["algo"]), [])
     for run in runs:
         key = (run.spec["env_id"], run.spec["algo"])
         if key in used:
             hyper = run.spec["hyperparameters"]
-            used[key].add((hyper.get("guide_threshold"), hyper.get("guide_noise_std")))
-    return [{"env_id": env_id, "algo": algo, "uses_t2": algo != "drl-eg-gmm",
-             "t2": sorted({t for t, _ in values if t is not None and algo != "drl-eg-gmm"}),
-             "sigma": sorted({n for _, n in values if n is not None}),
-             "source": t2_source(profile, env_id, algo)}
-            for (env_id, algo), values in used.items()]
+            used[key].append((hyper.get("guide_threshold"), hyper.get("guide_noise_std")))
+    rows = []
+    for (env_id, algo), values in used.items():
+        uses_t2 = algo in T2_ALGORITHMS
+        t2 = sorted({t for t, _ in values if t is not None}) if uses_t2 else []
+        rows.append({"env_id": env_id, "algo": algo, "uses_t2": uses_t2, "runs": len(values),
+                     "t2": t2, "t2_labels": ["always" if t >= ALWAYS_GUIDE else f"{t:g}"
+                                             for t in t2],
+                     "sigma": sorted({n for _, n in values if n is not None}),
+                     "source": t2_source(profile, env_id, algo)})
+    return rows
 
 
 T2_WAIT_REASON = ("waits for the MuJoCo T2 rule, fixed from `nox -s ablate-threshold -- "

@@ -30,6 +30,7 @@ class CurveBand:
 
 def steps_label(steps: float) -> str:
     """An env-step count as a short tick label: 0, 50k, 200k, 1M, 1.5M."""
+    steps = round(float(steps), 6) + 0.0  # no "-0" or "1e-11" from a tick's float noise
     if abs(steps) >= 1_000_000:
         return f"{steps / 1_000_000:g}M"
     if abs(steps) >= 1000:

@@ -85,6 +85,7 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from replicate import experiments
     from replicate.experiments import figure3_grid, get_profile, guidance_settings
 
+    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", None)  # before the rule, then with it
     specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]
     rows = {g["algo"]: g for g in guidance_settings("reduced", [], specs)}
     assert set(rows) == {"drl-eg", "drl-eg-gmm"} and rows["drl-eg"]["t2"] == []
@@ -95,6 +96,9 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
         "guide_threshold": 36.3, "guide_noise_std": 0.1}})
     rows = {g["algo"]: g for g in guidance_settings("reduced", [run], specs)}
     assert rows["drl-eg"]["t2"] == [36.3] and rows["drl-eg"]["sigma"] == [0.1]
+    assert rows["drl-eg"]["runs"] == 1 and rows["drl-eg-gmm"]["runs"] == 0
     assert "rule 16x (16 times the median spacing" in rows["drl-eg"]["source"]
     quick = guidance_settings("quick", [run])
     assert quick[0]["source"].endswith("(the spacing rule, 1x)")
+    run.spec["hyperparameters"]["guide_threshold"] = experiments.ALWAYS_GUIDE
+    assert guidance_settings("quick", [run])[0]["t2_labels"] == ["always"]

@@ -9,6 +9,7 @@ from replicate.profiles import get_profile
 def test_steps_label_shortens_thousands_and_millions():
     assert [steps_label(v) for v in (0, 500, 2500, 50_000, 200_000, 1_000_000, 1_500_000)] == [
         "0", "500", "2.5k", "50k", "200k", "1M", "1.5M"]
+    assert steps_label(-0.0) == "0" and steps_label(1e-11) == "0"
 
 
 def test_steps_axis_uses_short_labels():

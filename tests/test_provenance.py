@@ -9,13 +9,16 @@ def _git(where, *args):
     subprocess.run(["git", "-C", str(where), *args], check=True, capture_output=True)
 
 
-def test_revision_is_dirty_for_code_changes_only(tmp_path):
+def test_revision_is_dirty_for_code_changes_only(tmp_path, monkeypatch):
+    for name in ("GIT_DIR", "GIT_WORK_TREE", "GIT_INDEX_FILE", "GIT_LITERAL_PATHSPECS"):
+        monkeypatch.delenv(name, raising=False)
     for name in ("replicate/code.py", "runs/r/curve.csv", "reports/fig3/summary.json"):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("0\n")
     _git(tmp_path, "init", "-q")
     _git(tmp_path, "add", ".")
-    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "one")
+    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false",
+         "commit", "-qm", "one")
     head = subprocess.run(["git", "-C", str(tmp_path), "rev-parse", "HEAD"], check=True,
                           capture_output=True, text=True).stdout.strip()
     (tmp_path / "runs/r/curve.csv").write_text("1\n")
