@@ -14,7 +14,7 @@ import queue
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -110,7 +110,7 @@ def t2_source(profile: str, env_id: str, algo: str) -> str:
             "(reports/reduced/ablate-threshold-ant, -walker2d)")
 
 
-def guidance_settings(profile: str, runs: list[Run], specs: list[RunSpec] = ()
+def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = ()
                       ) -> list[dict[str, Any]]:
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
