@@ -3,8 +3,8 @@
 # SECONDS: the MuJoCo threshold ablation on both envs (each point one seed batch of 3 on the
 # GPU, two points at once per env: four small batches share the GPU, so that some finish
 # within one command; how they share it is unmeasured, see the logs' rates), and beside it,
-# on the spare cores, the Fig. 3 cells
-# that need no T2 rule and train one run per process (PPO, PPO+BC). Only finished runs come
+# on the spare cores, the Fig. 3 cells that need no T2 rule and train one run per process
+# (PPO, PPO+BC). Only finished runs come
 # back, packed into OUTDIR/runs.tgz by benchmarks/device_sitting.sh (unpack into runs/ here
 # and commit); checkpoints are off because none could come back.
 # usage: benchmarks/gpu_reduced_sitting.sh SECONDS OUTDIR
