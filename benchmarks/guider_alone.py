@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.drl_eg import functional_guider  # noqa: E402
+from baselines.drl_eg import demo_state_spacing, functional_guider  # noqa: E402
 from replicate.demos import default_demo_path, load_demos  # noqa: E402
 
 
@@ -48,7 +48,7 @@ def guider_episodes(env_id: str, episodes: int, noise_std: float) -> dict:
                      "median_distance": float(np.median(distances))})
     env.close()
     return {"env_id": env_id, "demo_return": float(demos.mean_return), "noise_std": noise_std,
-            "spacing": float(np.median(tree.query(states, k=2)[0][:, 1])), "episodes": rows}
+            "spacing": demo_state_spacing(states), "episodes": rows}
 
 
 def main() -> None:

@@ -115,11 +115,10 @@ def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = 
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
     comes from (``t2_source``). What a report prints beside the claims it judges."""
-    used: dict[tuple[str, str], list[tuple[float | None, float | None]]] = {}
-    for spec in list(specs) + [r.spec for r in runs]:
-        spec = spec if isinstance(spec, dict) else spec.to_dict()
-        if spec["algo"].startswith("drl-eg"):
-            used.setdefault((spec["env_id"], spec["algo"]), [])
+    cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"])
+                                                   for r in runs]
+    used: dict[tuple[str, str], list[tuple[float | None, float | None]]] = {
+        cell: [] for cell in cells if cell[1].startswith("drl-eg")}
     for run in runs:
         key = (run.spec["env_id"], run.spec["algo"])
         if key in used:
