@@ -82,3 +82,15 @@ def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
     summary = json.loads((ROOT / "reports" / "reduced" / "fig3" / "summary.json").read_text())
     assert not [f for f in summary["final_returns"] if f["algo"] in experiments.T2_ALGORITHMS
                 and f["env_id"] in experiments.MUJOCO_ENVS]
+
+
+def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
+    """MUJOCO_T2_RULE stays unset until the committed reduced ablation has every setting on
+    both envs, and is then the setting its written criterion picks (README: T2 on MuJoCo)."""
+    import numpy as np
+
+    from replicate import experiments
+    from replicate.ablation import RULE_PROFILE, choose_t2_rule, t2_rule_gains
+
+    standing = choose_t2_rule(t2_rule_gains(STORE, RULE_PROFILE), np.random.default_rng(0))
+    assert experiments.MUJOCO_T2_RULE == standing["choice"], standing["leader"]
