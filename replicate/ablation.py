@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import io
 import json
 import math
 import warnings
@@ -347,6 +346,8 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
     import matplotlib.pyplot as plt
     import seaborn as sns
 
+    from replicate.figures import png_bytes
+
     sns.set_theme(style="whitegrid", context="notebook")
     sigmas = sorted({r["sigma"] for r in rows})
     labels = list(dict.fromkeys(r["label"] for r in rows))
@@ -371,10 +372,7 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
         ax.set_ylabel(name)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def _mean_curve(runs: list[Run], column: str) -> tuple[np.ndarray, np.ndarray]:
@@ -398,7 +396,7 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     import matplotlib.pyplot as plt
     import seaborn as sns
 
-    from replicate.figures import format_steps_axis
+    from replicate.figures import format_steps_axis, png_bytes
 
     sns.set_theme(style="whitegrid", context="notebook")
     first_sigma = min((c.sigma for c in cells), default=0.0)
@@ -419,10 +417,7 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     right.set_ylim(-0.02, 1.02)
     left.legend(fontsize=7)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def t2_rule_standing(env_id: str, store: Path, profile: str) -> dict[str, Any] | None:

@@ -92,10 +92,7 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
         ax.legend(fontsize=8, loc="best")
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], palette: dict, xlabel: str) -> None:
@@ -158,7 +155,4 @@ def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, np.nda
         ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
