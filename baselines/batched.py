@@ -36,7 +36,7 @@ from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkp
                                          save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep, make_adam
-from baselines.common.evaluation import EVAL_SEED_OFFSET
+from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
 from baselines.common.stacked import (StackedMLP, StackedPolicy, StackedReplay, critic_pairs,
                                       pair_critics)
 from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
@@ -486,6 +486,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
     alive = np.ones(n, dtype=bool)
     failures: dict[int, str] = {}
     guided_steps = np.zeros(n, dtype=np.int64)
+    training = TrainingReturns(n)
     steps_since_eval = 0
     best_returns = np.full(n, -np.inf)  # for members that keep their best policy (experts)
 
@@ -497,10 +498,12 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
 
     def evaluate_and_record(step: int) -> None:
         returns = evaluate_members(eval_envs, agent.act_deterministic, eval_episodes, alive)
+        train_returns = training.take()
         for k in np.flatnonzero(alive):
             gate = explorer.after_eval(k, float(np.mean(returns[k])))
             fraction = guided_steps[k] / steps_since_eval if steps_since_eval else float("nan")
-            point = EvalPoint(step, tuple(returns[k]), float(fraction), gate)
+            point = EvalPoint(step, tuple(returns[k]), float(fraction), gate,
+                              float(train_returns[k]))
             curves[k].append(point)
             bctx.members[k].on_eval(point)
             keep = bctx.members[k].best_policy_path
@@ -515,7 +518,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             "agent": agent_state(agent), "explorer": explorer.state_dict(),
             "buffer": buffer.state_dict(), "batch_rngs": batch_rngs, "curves": curves,
             "alive": alive.copy(), "failures": dict(failures), "obs": obs.copy(),
-            "guided_steps": guided_steps.copy(),
+            "guided_steps": guided_steps.copy(), "training_returns": training.state_dict(),
             "steps_since_eval": steps_since_eval, "envs": envs.snapshot(),
             "eval_envs": eval_envs.snapshot()})
 
@@ -543,6 +546,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             for k, reason in resumed["failures"].items():  # failed before the checkpoint
                 fail(k, reason, total_steps)
             guided_steps[:] = resumed["guided_steps"]
+            training.load_state_dict(resumed.get("training_returns"))
             steps_since_eval = resumed["steps_since_eval"]
             obs = resumed["obs"]
             replayed = envs.restore(resumed["envs"])
@@ -567,6 +571,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             result = envs.step(actions, active=alive)
             buffer.add(obs, actions, result.rewards, result.next_obs, result.terminated)
             obs = result.obs
+            training.add(result.rewards, (result.terminated | result.truncated) & alive)
             guided_steps += guided & alive
             steps_since_eval += 1
 

@@ -29,7 +29,7 @@ from baselines.common.checkpoint import (CheckpointDeviceError, due, env_rng_sta
                                          load_checkpoint, restore_env_rng, save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep, make_adam
-from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
+from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns, evaluate
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
 from baselines.registry import register
 from envs import make_env
@@ -229,13 +229,14 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
     batch_rng = np.random.default_rng(ctx.seed)
     curve: list[EvalPoint] = []
     best_return = -np.inf
+    training = TrainingReturns()
 
     def evaluate_and_record(step: int, guided_steps: int, steps_since: int) -> None:
         nonlocal best_return
         returns = evaluate(eval_env, lambda o: agent.act(o, deterministic=True), ctx.eval_episodes)
         gate = explorer.after_eval(float(np.mean(returns)))
         fraction = guided_steps / steps_since if steps_since else float("nan")
-        point = EvalPoint(step, tuple(returns), fraction, gate)
+        point = EvalPoint(step, tuple(returns), fraction, gate, float(training.take()[0]))
         curve.append(point)
         ctx.on_eval(point)
         if ctx.best_policy_path is not None and point.mean_return > best_return:
@@ -249,6 +250,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
             "explorer": explorer.state_dict(),
             "buffer": buffer.state_dict(), "batch_rng": batch_rng, "curve": curve,
             "counters": (guided_steps, steps_since_eval, best_return),
+            "training_returns": training.state_dict(),
             "env_rng": env_rng_state(env), "eval_env_rng": env_rng_state(eval_env)})
 
     resumed = load_checkpoint(ctx.checkpoint_path)
@@ -271,6 +273,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         buffer.load_state_dict(resumed["buffer"])
         batch_rng = resumed["batch_rng"]
         guided_steps, steps_since_eval, best_return = resumed["counters"]
+        training.load_state_dict(resumed.get("training_returns"))
         restore_env_rng(env, resumed["env_rng"])
         restore_env_rng(eval_env, resumed["eval_env_rng"])
         ctx.on_resume(resumed["step"])
@@ -287,6 +290,7 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         next_obs, reward, terminated, truncated, _ = env.step(action)
         buffer.add(obs, action, reward, next_obs, terminated)
         obs = next_obs
+        training.add(reward, terminated or truncated)
         guided_steps += guided
         steps_since_eval += 1
 

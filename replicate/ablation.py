@@ -380,16 +380,17 @@ def _mean_curve(runs: list[Run], column: str) -> tuple[np.ndarray, np.ndarray]:
     length = min(len(r.curve) for r in runs)
     steps = runs[0].curve["step"].to_numpy(float)[:length]
     values = np.stack([r.curve[column].to_numpy(float)[:length] for r in runs])
-    if column != "guided_fraction":
+    if column not in ("guided_fraction", "train_return"):
         return steps, values.mean(axis=0)
-    with warnings.catch_warnings():  # the first point has no fraction in any run: NaN stays
+    with warnings.catch_warnings():  # a point no run has a value for stays NaN
         warnings.simplefilter("ignore", RuntimeWarning)
         return steps, np.nanmean(values, axis=0)
 
 
 def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None) -> bytes:
     """Return and guided fraction of training steps against env steps, one line per T2
-    (the first sigma of the grid), beside SAC's return."""
+    (the first sigma of the grid), beside SAC's return; dotted, where the runs recorded it,
+    what the training episodes (the executed actions, a guider's included) earned."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -406,12 +407,16 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     for color, cell in zip(colors, shown):
         label = threshold_label(cell.threshold, spacing)
         left.plot(*_mean_curve(cell.runs, "return_mean"), color=color, label=label)
+        steps, earned = _mean_curve(cell.runs, "train_return")
+        if np.isfinite(earned).any():
+            left.plot(steps, earned, color=color, linestyle=":", linewidth=1.2)
         right.plot(*_mean_curve(cell.runs, "guided_fraction"), color=color, label=label)
     if sac_runs:
         left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
                   label="SAC")
     format_steps_axis(left)
-    left.set_ylabel("evaluation return (mean over seeds)")
+    left.set_ylabel("return (mean over seeds)")
+    left.set_title("solid: deterministic evaluation; dotted: training episodes", fontsize=9)
     format_steps_axis(right)
     right.set_ylabel("guided share of training steps")
     right.set_ylim(-0.02, 1.02)

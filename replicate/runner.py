@@ -48,7 +48,7 @@ from replicate.spec import RunSpec, spec_hash
 provenance.code_revision()  # fix the code's revision when the code is loaded
 
 CURVE_COLUMNS = ["step", "return_mean", "return_std", "returns", "guided_fraction", "gate_open",
-                 "wall_s"]
+                 "train_return", "wall_s"]
 
 
 @dataclass
@@ -116,8 +116,10 @@ def load_run(run_dir: Path) -> Run:
     if not is_complete(run_dir):
         raise HarnessError(f"{run_dir} is not a complete run directory",
                            "point at a directory inside the run store that has provenance.json")
-    return Run(run_dir, json.loads((run_dir / "spec.json").read_text()),
-               pd.read_csv(run_dir / "curve.csv"),
+    curve = pd.read_csv(run_dir / "curve.csv")
+    if "train_return" not in curve:  # trained before the column was recorded
+        curve["train_return"] = np.nan
+    return Run(run_dir, json.loads((run_dir / "spec.json").read_text()), curve,
                json.loads((run_dir / "provenance.json").read_text()))
 
 
@@ -255,6 +257,7 @@ class _RunRecorder:
             point.step, f"{point.mean_return:.6g}", f"{np.std(point.returns):.6g}",
             ";".join(f"{r:.6g}" for r in point.returns), f"{point.guided_fraction:.6g}",
             "" if point.gate_open is None else int(point.gate_open),
+            f"{point.train_return:.6g}",
             self.earlier_walls[point.step] if kept
             else f"{self.earlier_wall + time.time() - self.started:.3f}"])
         self.curve_file.flush()

@@ -29,7 +29,9 @@ def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAI
 
 
 def curve_signature(points: list[EvalPoint]) -> list[tuple]:
-    """Comparable form of a curve; the step-0 guided fraction is NaN and NaN != NaN."""
+    """Comparable form of a curve; the step-0 guided fraction and training return are NaN
+    and NaN != NaN."""
     def plain(value):
         return None if isinstance(value, float) and math.isnan(value) else value
-    return [(p.step, tuple(p.returns), plain(p.guided_fraction)) for p in points]
+    return [(p.step, tuple(p.returns), plain(p.guided_fraction), plain(p.train_return))
+            for p in points]

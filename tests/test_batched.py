@@ -28,7 +28,7 @@ from envs.vector import EnvBatch
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute_batch, is_complete, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, curve_signature
+from tests.helpers import MOUNTAINCAR, TINY, curve_signature, train_tiny
 
 OBS, ACT, ROWS, SEEDS = 11, 3, 32, (0, 1, 2)
 ROOT = Path(__file__).resolve().parents[1]
@@ -419,3 +419,17 @@ def test_a_batch_trains_on_the_gpu_with_graphs(tmp_path):
     outcome = execute_batch(members, tmp_path, device="cuda")
     assert not outcome.failed and len(outcome.runs) == 2
     assert all(r.provenance["batch"]["device"].startswith("cuda") for r in outcome.runs)
+
+
+def test_a_batch_records_the_training_returns_of_the_one_run_path(tmp_path):
+    """Before learning starts each member acts as its seed's one run does, so the training
+    episodes' returns on its curve are the one run's (Hopper: short untrained episodes)."""
+    hyper = {**TINY, "learning_starts": 1_000}
+    specs = [RunSpec("sac", "Hopper-v5", seed, 400, 200, 1, hyper) for seed in (0, 1)]
+    runs = execute_batch([prepare(s) for s in specs], tmp_path, device="cpu").runs
+    for seed, run in zip((0, 1), runs):
+        points, _ = train_tiny("sac", seed=seed, steps=400, env_id="Hopper-v5",
+                               learning_starts=1_000)
+        one_run = [p.train_return for p in points]
+        assert np.isnan(one_run[0]) and np.isfinite(one_run[1:]).all()
+        np.testing.assert_allclose(run.curve["train_return"], one_run, rtol=1e-5)

@@ -143,7 +143,7 @@ def _interrupted_run(store, sitting_device: str):
     (work / "sittings.json").write_text(json.dumps([{
         "started_utc": "2026-11-26T00:00:00+00:00", "resumed_from_step": 0, "wall_time_s": 1.0,
         "git_revision": "x", "device": sitting_device}]))
-    (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,0.5\n")
+    (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,nan,0.5\n")
     return prepared, work
 
 

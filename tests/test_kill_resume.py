@@ -58,3 +58,4 @@ def test_kill_minus_nine_then_resume(tmp_path):
     theirs = pd.read_csv(reference / "curve.csv")
     assert ours["step"].tolist() == theirs["step"].tolist()
     assert ours["returns"].tolist() == theirs["returns"].tolist()
+    pd.testing.assert_series_equal(ours["train_return"], theirs["train_return"])

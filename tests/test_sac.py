@@ -1,6 +1,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 from torch import distributions as D
 
@@ -92,3 +93,39 @@ def test_update_reduces_q_loss_on_a_fixed_batch():
     losses = [agent.update(batch)["q_loss"] for _ in range(60)]
     assert all(math.isfinite(x) for x in losses)
     assert losses[-1] < losses[0]
+
+
+def test_training_returns_count_each_ended_episode_once_and_skip_unknown_starts():
+    from baselines.common.evaluation import TrainingReturns
+
+    returns = TrainingReturns(2)
+    for rewards, ended in (([1.0, 2.0], [False, False]), ([3.0, 4.0], [True, False]),
+                           ([5.0, 6.0], [True, True])):
+        returns.add(np.array(rewards), np.array(ended))
+    assert returns.take().tolist() == [4.5, 12.0]  # env 0: episodes of 4 and 5
+    assert np.isnan(returns.take()).all()  # nothing ended since
+    returns.add(np.array([1.0, 1.0]), np.array([False, False]))
+    saved = returns.state_dict()
+    resumed, unknown = TrainingReturns(2), TrainingReturns(2)
+    resumed.load_state_dict(saved)
+    unknown.load_state_dict(None)  # a checkpoint from before the returns were kept
+    for each in (resumed, unknown):
+        each.add(np.array([2.0, 2.0]), np.array([True, False]))
+    assert resumed.take()[0] == 3.0
+    assert np.isnan(unknown.take()[0])  # its episode began before the resume: left out
+
+
+def test_the_curve_records_what_the_training_episodes_earned():
+    """Each point's train_return is the mean return of the training episodes that ended
+    since the point before, read back from the buffer's rewards (Hopper's untrained
+    episodes end within a few dozen steps)."""
+    points, buffer = train_tiny("sac", steps=400, env_id="Hopper-v5")
+    rewards, ends = buffer.rewards[:400], np.flatnonzero(buffer.terminated[:400]) + 1
+    expected, start = {200: [], 400: []}, 0
+    for end in ends:
+        expected[200 if end <= 200 else 400].append(float(rewards[start:end].sum()))
+        start = end
+    assert expected[200] and expected[400]
+    assert math.isnan(points[0].train_return)
+    for point in points[1:]:
+        assert point.train_return == pytest.approx(np.mean(expected[point.step]), rel=1e-5)

@@ -28,6 +28,9 @@ class EvalPoint:
     returns: tuple[float, ...]  # return of each deterministic test episode
     guided_fraction: float = float("nan")  # share of steps since the last point taken by a guider
     gate_open: bool | None = None  # DRL-EG: was R_demo > R_pi after this evaluation
+    # mean return of the training episodes (executed actions, guided or not) that ended
+    # since the last point; NaN where none did or the loop does not record it
+    train_return: float = float("nan")
 
     @property
     def mean_return(self) -> float:

@@ -23,3 +23,48 @@ def evaluate(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], episodes: in
             done = terminated or truncated
         returns.append(total)
     return returns
+
+
+class TrainingReturns:
+    """The undiscounted returns of the training episodes of ``n`` envs: what the executed
+    actions earned, a guider's included. Beside the deterministic evaluation it shows what
+    the data in the buffer is worth; a curve point holds the mean over the episodes that
+    ended since the point before (NaN when none did)."""
+
+    def __init__(self, n: int = 1):
+        self.running = np.zeros(n)
+        self.total = np.zeros(n)
+        self.count = np.zeros(n, dtype=np.int64)
+
+    def add(self, rewards: np.ndarray | float, ended: np.ndarray | bool) -> None:
+        """One env step of every env (rewards of idle envs are zero); ``ended``: which
+        episodes ended with it. An episode whose start is unknown (NaN) is not counted."""
+        self.running += rewards
+        ended = np.broadcast_to(np.asarray(ended, dtype=bool), self.running.shape)
+        counted = ended & np.isfinite(self.running)
+        self.total[counted] += self.running[counted]
+        self.count[counted] += 1
+        self.running[ended] = 0.0
+
+    def take(self) -> np.ndarray:
+        """Each env's mean return since the last ``take``, and start counting afresh."""
+        means = np.where(self.count > 0, self.total / np.maximum(self.count, 1), np.nan)
+        self.total[:] = 0.0
+        self.count[:] = 0
+        return means
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {"running": self.running.copy(), "total": self.total.copy(),
+                "count": self.count.copy()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray] | None) -> None:
+        """``None`` (a checkpoint from before these were kept): the episodes in progress
+        began unseen, so they are left out."""
+        if state is None:
+            self.running[:] = np.nan
+            self.total[:] = 0.0
+            self.count[:] = 0
+            return
+        self.running[:] = state["running"]
+        self.total[:] = state["total"]
+        self.count[:] = state["count"]
