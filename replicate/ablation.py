@@ -457,6 +457,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
              "label": threshold_label(c.threshold, spacing), "admitted_random_share": share,
              "final": estimate([r.final_return for r in c.runs]),
              "auc": estimate([area_under_curve(r) for r in c.runs]),
+             "guided_share": [r.guided_share for r in c.runs],
              "runs": [r.path.name for r in c.runs]} for c, share in zip(cells, admitted)]
     sac_runs = sac_outcome.runs
     sac_final = float(np.mean([r.final_return for r in sac_runs])) if sac_runs else None

@@ -341,6 +341,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
         sac, drl = runs["sac"], runs["drl-eg"]
         rows.append({"seed": seed, "sac": sac.final_return, "drl": drl.final_return,
                      "difference": drl.final_return - sac.final_return,
+                     "guided_share": drl.guided_share,
                      # same seed, same initial weights: the step-0 evaluations must agree
                      "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
                      "runs": [sac.path.name, drl.path.name]})

@@ -64,6 +64,17 @@ class Run:
     def final_return(self) -> float:
         return float(self.curve["return_mean"].iloc[-1])
 
+    @property
+    def guided_share(self) -> float:
+        """The share of all its training steps on which a guider chose the action (NaN for
+        an algorithm that does not record it)."""
+        steps = np.diff(self.curve["step"].to_numpy(float))
+        fractions = self.curve["guided_fraction"].to_numpy(float)[1:]
+        known = np.isfinite(fractions)
+        if not known.any():
+            return float("nan")
+        return float((fractions[known] * steps[known]).sum() / steps[known].sum())
+
 
 @dataclass
 class PreparedRun:

@@ -25,6 +25,7 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
     summary = json.loads((out / "summary.json").read_text())
     assert summary["zero_threshold_equals_sac"] == {"pairs": 1, "equal": 1, "holds": True}
     assert [r["label"] for r in summary["rows"]] == ["0 (off)", "always"]
+    assert summary["rows"][0]["guided_share"] == [0.0]  # T2 = 0 never guides
     assert all(len(r["runs"]) == 1 and np.isfinite(r["final"]["mean"]) for r in summary["rows"])
     assert (store / "ablate-threshold.db").is_file()
     html = (out / "index.html").read_text()
@@ -104,6 +105,8 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
         curve = pd.read_csv(store / row["runs"][0] / "curve.csv")
         fractions.append(float(curve["guided_fraction"].iloc[1:].mean()))
     assert fractions == sorted(fractions) and fractions[-1] == 1.0 and fractions[0] < 1.0
+    shares = [row["guided_share"][0] for row in summary["rows"]]  # of the whole run
+    assert shares == sorted(shares) and shares[-1] == 1.0 and shares[0] < 1.0
     # the rebuilt report (the `report` command's path) reads the same runs
     rebuilt = ablation.rebuild_threshold_ablation("smoke", store, tmp_path / "again", env_id)
     again = json.loads((rebuilt.parent / "summary.json").read_text())

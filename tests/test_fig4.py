@@ -12,6 +12,7 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert [r["seed"] for r in summary["rows"]] == [0, 1]
     assert all(r["same_start"] for r in summary["rows"])  # same seed, same initial weights
+    assert all(0 <= r["guided_share"] <= 1 for r in summary["rows"])
     assert summary["paired"] is not None and summary["claim"] is None  # claim 5 is about Ant
     html = (out / "index.html").read_text()
     assert "data:image/png;base64," in html and 'id="smoke-warning"' in html
@@ -102,3 +103,17 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     assert quick[0]["source"].endswith("(the spacing rule, 1x)")
     run.spec["hyperparameters"]["guide_threshold"] = experiments.ALWAYS_GUIDE
     assert guidance_settings("quick", [run])[0]["t2_labels"] == ["always"]
+
+
+def test_guided_share_weighs_each_points_fraction_by_the_steps_it_covers(tmp_path):
+    import math
+
+    import pandas as pd
+
+    from replicate.runner import Run
+
+    curve = pd.DataFrame({"step": [0, 100, 200, 250],
+                          "guided_fraction": [math.nan, 0.5, 0.0, 1.0]})
+    assert Run(tmp_path, {}, curve, {}).guided_share == (50 + 0 + 50) / 250
+    ppo = curve.assign(guided_fraction=math.nan)  # an algorithm without a guider
+    assert math.isnan(Run(tmp_path, {}, ppo, {}).guided_share)
