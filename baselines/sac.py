@@ -236,7 +236,8 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         returns = evaluate(eval_env, lambda o: agent.act(o, deterministic=True), ctx.eval_episodes)
         gate = explorer.after_eval(float(np.mean(returns)))
         fraction = guided_steps / steps_since if steps_since else float("nan")
-        point = EvalPoint(step, tuple(returns), fraction, gate, float(training.take()[0]))
+        train_return = float(training.take()[0])
+        point = EvalPoint(step, tuple(returns), fraction, gate, train_return)
         curve.append(point)
         ctx.on_eval(point)
         if ctx.best_policy_path is not None and point.mean_return > best_return:
@@ -273,7 +274,8 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         buffer.load_state_dict(resumed["buffer"])
         batch_rng = resumed["batch_rng"]
         guided_steps, steps_since_eval, best_return = resumed["counters"]
-        training.load_state_dict(resumed.get("training_returns"))
+        # taken where an episode had just ended
+        training.load_state_dict(resumed.get("training_returns"), between_episodes=True)
         restore_env_rng(env, resumed["env_rng"])
         restore_env_rng(eval_env, resumed["eval_env_rng"])
         ctx.on_resume(resumed["step"])

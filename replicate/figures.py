@@ -117,7 +117,8 @@ def draw_profiles(ax, taus: np.ndarray,
     ax.set_ylabel("fraction of runs above tau")
 
 
-def png_bytes(fig) -> bytes:
+def png_bytes(fig: plt.Figure) -> bytes:
+    """The figure as PNG (the reports embed it), closed afterwards."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)

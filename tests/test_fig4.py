@@ -12,7 +12,8 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert [r["seed"] for r in summary["rows"]] == [0, 1]
     assert all(r["same_start"] for r in summary["rows"])  # same seed, same initial weights
-    assert all(0 <= r["guided_share"] <= 1 for r in summary["rows"])
+    shares = [r["guided_share"] for r in summary["rows"]]  # T2 0.05 admits most states
+    assert all(0 <= share <= 1 for share in shares) and max(shares) > 0
     assert summary["paired"] is not None and summary["claim"] is None  # claim 5 is about Ant
     html = (out / "index.html").read_text()
     assert "data:image/png;base64," in html and 'id="smoke-warning"' in html

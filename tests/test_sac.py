@@ -106,13 +106,19 @@ def test_training_returns_count_each_ended_episode_once_and_skip_unknown_starts(
     assert np.isnan(returns.take()).all()  # nothing ended since
     returns.add(np.array([1.0, 1.0]), np.array([False, False]))
     saved = returns.state_dict()
-    resumed, unknown = TrainingReturns(2), TrainingReturns(2)
+    resumed, unknown, between = TrainingReturns(2), TrainingReturns(2), TrainingReturns(2)
     resumed.load_state_dict(saved)
     unknown.load_state_dict(None)  # a checkpoint from before the returns were kept
-    for each in (resumed, unknown):
+    between.load_state_dict(None, between_episodes=True)  # ... taken at an episode's end
+    for each in (resumed, unknown, between):
         each.add(np.array([2.0, 2.0]), np.array([True, False]))
     assert resumed.take()[0] == 3.0
-    assert np.isnan(unknown.take()[0])  # its episode began before the resume: left out
+    for each in (unknown, between):  # what ended before the resume went unseen
+        assert np.isnan(each.take()).all()
+        each.add(np.array([1.0, 1.0]), np.array([True, True]))
+    after = unknown.take()
+    assert after[0] == 1.0 and np.isnan(after[1])  # env 1's episode began before the resume
+    assert between.take().tolist() == [1.0, 3.0]  # env 1's episode began after the resume
 
 
 def test_the_curve_records_what_the_training_episodes_earned():

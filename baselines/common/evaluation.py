@@ -29,12 +29,13 @@ class TrainingReturns:
     """The undiscounted returns of the training episodes of ``n`` envs: what the executed
     actions earned, a guider's included. Beside the deterministic evaluation it shows what
     the data in the buffer is worth; a curve point holds the mean over the episodes that
-    ended since the point before (NaN when none did)."""
+    ended since the point before (NaN when none did, or when some of them went unseen)."""
 
     def __init__(self, n: int = 1):
-        self.running = np.zeros(n)
-        self.total = np.zeros(n)
-        self.count = np.zeros(n, dtype=np.int64)
+        self.running: np.ndarray = np.zeros(n)  # return so far of each episode in progress
+        self.total: np.ndarray = np.zeros(n)  # of the episodes ended since the last take
+        self.count: np.ndarray = np.zeros(n, dtype=np.int64)
+        self.partial: np.ndarray = np.zeros(n, dtype=bool)  # some of those went unseen
 
     def add(self, rewards: np.ndarray | float, ended: np.ndarray | bool) -> None:
         """One env step of every env (rewards of idle envs are zero); ``ended``: which
@@ -49,22 +50,28 @@ class TrainingReturns:
     def take(self) -> np.ndarray:
         """Each env's mean return since the last ``take``, and start counting afresh."""
         means = np.where(self.count > 0, self.total / np.maximum(self.count, 1), np.nan)
+        means[self.partial] = np.nan
         self.total[:] = 0.0
         self.count[:] = 0
+        self.partial[:] = False
         return means
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {"running": self.running.copy(), "total": self.total.copy(),
-                "count": self.count.copy()}
+                "count": self.count.copy(), "partial": self.partial.copy()}
 
-    def load_state_dict(self, state: dict[str, np.ndarray] | None) -> None:
-        """``None`` (a checkpoint from before these were kept): the episodes in progress
-        began unseen, so they are left out."""
+    def load_state_dict(self, state: dict[str, np.ndarray] | None,
+                        between_episodes: bool = False) -> None:
+        """``None``: a checkpoint from before these were kept. The episodes that ended since
+        the last point went unseen, so the next point has no value, and an episode in
+        progress (unless the checkpoint was taken ``between_episodes``) is left out."""
         if state is None:
-            self.running[:] = np.nan
+            self.running[:] = 0.0 if between_episodes else np.nan
             self.total[:] = 0.0
             self.count[:] = 0
+            self.partial[:] = True
             return
         self.running[:] = state["running"]
         self.total[:] = state["total"]
         self.count[:] = state["count"]
+        self.partial[:] = state["partial"]
