@@ -114,21 +114,24 @@ def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = 
                       ) -> list[dict[str, Any]]:
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
-    comes from (``t2_source``). What a report prints beside the claims it judges."""
+    comes from (``t2_source``), and the share of training steps the guider took in each
+    run. What a report prints beside the claims it judges."""
     cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"])
                                                    for r in runs]
-    used: dict[tuple[str, str], list[tuple[float | None, float | None]]] = {
+    used: dict[tuple[str, str], list[Run]] = {
         cell: [] for cell in cells if cell[1].startswith("drl-eg")}
-    for run in runs:
+    for run in sorted(runs, key=lambda r: r.spec["seed"]):
         key = (run.spec["env_id"], run.spec["algo"])
         if key in used:
-            hyper = run.spec["hyperparameters"]
-            used[key].append((hyper.get("guide_threshold"), hyper.get("guide_noise_std")))
+            used[key].append(run)
     rows = []
-    for (env_id, algo), values in used.items():
+    for (env_id, algo), cell_runs in used.items():
+        values = [(r.spec["hyperparameters"].get("guide_threshold"),
+                   r.spec["hyperparameters"].get("guide_noise_std")) for r in cell_runs]
         uses_t2 = algo in T2_ALGORITHMS
         t2 = sorted({t for t, _ in values if t is not None}) if uses_t2 else []
         rows.append({"env_id": env_id, "algo": algo, "uses_t2": uses_t2, "runs": len(values),
+                     "guided_share": [r.guided_share for r in cell_runs],
                      "t2": t2, "t2_labels": ["always" if t >= ALWAYS_GUIDE else f"{t:g}"
                                              for t in t2],
                      "sigma": sorted({n for _, n in values if n is not None}),

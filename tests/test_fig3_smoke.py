@@ -33,6 +33,8 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     assert guidance["drl-eg"]["t2"] == [
         DRL_EG_ENV_DEFAULTS["MountainCarContinuous-v0"]["guide_threshold"]]
     assert guidance["drl-eg-gmm"]["t2"] == [] and not guidance["drl-eg-gmm"]["uses_t2"]
+    assert all(0 <= share <= 1 for g in guidance.values() for share in g["guided_share"])
+    assert len(guidance["drl-eg"]["guided_share"]) == guidance["drl-eg"]["runs"]
 
     # a second invocation trains nothing and rebuilds the same numbers from the store
     capsys.readouterr()

@@ -94,10 +94,13 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     assert rows["drl-eg"]["source"].startswith("none yet: waits for the MuJoCo T2 rule")
     assert rows["drl-eg-gmm"]["source"].startswith("unused")
     monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "16x")
-    run = SimpleNamespace(spec={"algo": "drl-eg", "env_id": "Ant-v5", "hyperparameters": {
-        "guide_threshold": 36.3, "guide_noise_std": 0.1}})
+    run = SimpleNamespace(spec={"algo": "drl-eg", "env_id": "Ant-v5", "seed": 0,
+                                "hyperparameters": {"guide_threshold": 36.3,
+                                                    "guide_noise_std": 0.1}},
+                          guided_share=0.25)
     rows = {g["algo"]: g for g in guidance_settings("reduced", [run], specs)}
     assert rows["drl-eg"]["t2"] == [36.3] and rows["drl-eg"]["sigma"] == [0.1]
+    assert rows["drl-eg"]["guided_share"] == [0.25]
     assert rows["drl-eg"]["runs"] == 1 and rows["drl-eg-gmm"]["runs"] == 0
     assert "rule 16x (16 times the median spacing" in rows["drl-eg"]["source"]
     quick = guidance_settings("quick", [run])
