@@ -414,6 +414,9 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     if sac_runs:
         left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
                   label="SAC")
+        steps, earned = _mean_curve(sac_runs, "train_return")
+        if np.isfinite(earned).any():
+            left.plot(steps, earned, color="0.3", linestyle=":", linewidth=1.2)
     format_steps_axis(left)
     left.set_ylabel("return (mean over seeds)")
     left.set_title("solid: deterministic evaluation; dotted: training episodes", fontsize=9)
