@@ -140,16 +140,19 @@ def aggregate_png(iqm: dict[str, tuple[float, float, float]], taus: np.ndarray,
     return png_bytes(fig)
 
 
-def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, np.ndarray]]]],
+def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, ...]]]],
                       title: str) -> bytes:
-    """One panel per seed, one line per algorithm: the paired runs of Fig. 4."""
+    """One panel per seed, one line per algorithm: the paired runs of Fig. 4, from (steps,
+    evaluation returns[, training episodes' returns, drawn dotted where recorded])."""
     sns.set_theme(style="whitegrid", context="notebook")
     algos = sorted({algo for _, curves in panels for algo in curves})
     palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4), squeeze=False)
     for ax, (seed, curves) in zip(axes[0], panels, strict=True):
-        for algo, (steps, returns) in sorted(curves.items()):
+        for algo, (steps, returns, *earned) in sorted(curves.items()):
             ax.plot(steps, returns, color=palette[algo], label=algo, linewidth=1.8)
+            if earned and np.isfinite(earned[0]).any():
+                ax.plot(steps, earned[0], color=palette[algo], linestyle=":", linewidth=1.1)
         ax.set_title(f"seed {seed}")
         format_steps_axis(ax)
         ax.set_ylabel("return")

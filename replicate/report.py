@@ -356,7 +356,8 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
         claim = claim_5(claim_groups(outcome.runs), {}, rng)
         if not profile.meaningful:
             claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"
-    panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy())
+    panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy(),
+                             run.curve["train_return"].to_numpy(float))
                       for algo, run in runs.items()}) for seed, runs in pairs.items()]
     title = f"Fig. 4 replication on {env_id}, profile '{profile.name}'"
     context = {
