@@ -404,19 +404,21 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     shown = [c for c in cells if c.sigma == first_sigma and c.runs]
     colors = sns.color_palette("viridis", max(len(shown), 1))
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.8))
+
+    def dotted_training_returns(runs: list[Run], color: Any) -> None:
+        steps, earned = _mean_curve(runs, "train_return")
+        if np.isfinite(earned).any():
+            left.plot(steps, earned, color=color, linestyle=":", linewidth=1.2)
+
     for color, cell in zip(colors, shown):
         label = threshold_label(cell.threshold, spacing)
         left.plot(*_mean_curve(cell.runs, "return_mean"), color=color, label=label)
-        steps, earned = _mean_curve(cell.runs, "train_return")
-        if np.isfinite(earned).any():
-            left.plot(steps, earned, color=color, linestyle=":", linewidth=1.2)
+        dotted_training_returns(cell.runs, color)
         right.plot(*_mean_curve(cell.runs, "guided_fraction"), color=color, label=label)
     if sac_runs:
         left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
                   label="SAC")
-        steps, earned = _mean_curve(sac_runs, "train_return")
-        if np.isfinite(earned).any():
-            left.plot(steps, earned, color="0.3", linestyle=":", linewidth=1.2)
+        dotted_training_returns(sac_runs, "0.3")
     format_steps_axis(left)
     left.set_ylabel("return (mean over seeds)")
     left.set_title("solid: deterministic evaluation; dotted: training episodes", fontsize=9)
