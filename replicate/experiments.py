@@ -545,8 +545,9 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
         why = "; they wait for the MuJoCo T2 rule" if selected else ""
         raise HarnessError(f"--algos/--envs: no cell of this grid to train there{why}",
                            "choose other cells (`--dry-run` lists what is missing)")
-    for env_id, algo, reason in skipped:
-        print(f"skipped {algo} on {env_id}: {reason}")
+    for env_id, algo, reason in skipped:  # the report lists them all; here the chosen ones
+        if (algos is None or algo in algos) and (envs is None or env_id in envs):
+            print(f"skipped {algo} on {env_id}: {reason}")
     outcome = train_cells(specs, chosen, store, command, dry_run=dry_run, **grid_options)
     if dry_run:
         return None

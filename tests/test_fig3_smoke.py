@@ -158,3 +158,9 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3
     assert main(["fig3", "--profile", "reduced", "--store", str(store), "--algos", "drl-eg",
                  "--envs", "Ant-v5", "--dry-run"]) == 2  # (until the rule is set)
     assert "wait for the MuJoCo T2 rule" in capsys.readouterr().err
+    # the cells skipped for the rule are printed only where the selection reaches them
+    reduced = ["fig3", "--profile", "reduced", "--store", str(store), "--dry-run"]
+    assert main(reduced) == 0
+    assert "skipped drl-eg on Ant-v5" in capsys.readouterr().out  # (until the rule is set)
+    assert main(reduced + ["--algos", "ppo", "--envs", "MountainCarContinuous-v0"]) == 0
+    assert "skipped" not in capsys.readouterr().out
