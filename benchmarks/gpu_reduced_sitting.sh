@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# One command on a lent GPU machine for the reduced profile's open cells, as much as fits
-# SECONDS: the MuJoCo threshold ablation on both envs (each point one seed batch of 3 on the
-# GPU, two points at once per env: four small batches share the GPU, so that some finish
-# within one command; how they share it is unmeasured, see the logs' rates), and beside it,
-# on the spare cores, the Fig. 3 cells that need no T2 rule and train one run per process
-# (PPO, PPO+BC). Only finished runs come
-# back, packed into OUTDIR/runs.tgz by benchmarks/device_sitting.sh (unpack into runs/ here
-# and commit); checkpoints are off because none could come back.
+# One command on a lent GPU machine for the reduced profile's MuJoCo sweep points, as much
+# as fits SECONDS: the threshold ablation on both envs (each point one seed batch of 3 on the
+# GPU, two points at once per env), and beside it, on the spare cores, the Fig. 3 cells that
+# need no T2 rule and train one run per process (PPO, PPO+BC). A 200k-step point needs more
+# than the 10 minutes a device command has now (see gpu_short_cells_sitting.sh), so this is
+# for a machine lent for longer. Only finished runs come back, packed into OUTDIR/runs.tgz by
+# benchmarks/device_sitting.sh (unpack into runs/ here and commit); checkpoints are off
+# because none could come back.
 # usage: benchmarks/gpu_reduced_sitting.sh SECONDS OUTDIR
 set -u
 : "${2:?usage: benchmarks/gpu_reduced_sitting.sh SECONDS OUTDIR}"
