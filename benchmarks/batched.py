@@ -196,30 +196,47 @@ def step_time_split(env_id: str, members: int, device: str, env_workers: int,
 
 
 def update_precision(calls: int = 50) -> dict[str, float]:
-    """Milliseconds per V-SAC update of one member on one thread: fp32 and bf16 autocast."""
+    """Milliseconds per V-SAC update on one thread, for one member and a stack of 3 (a CPU
+    core's batch): fp32, bf16 autocast (one member), and fp32 whose products round their
+    inputs to bf16 and accumulate in fp32 (oneDNN's bf16 math mode, which runs the products
+    on AMX where the CPU has it; ``torch.backends.mkldnn.matmul.fp32_precision``)."""
     from baselines.common.buffer import Batch
 
     torch.set_num_threads(1)
-    contexts = [TrainContext(env_id="Hopper-v5", seed=0, total_steps=10**6,
-                             eval_interval=HUGE, eval_episodes=1)]
-    bctx = BatchContext(contexts)
-    agent = stacked_agent(bctx, [get_algorithm("sac").make_config({})], twin_q=False)
-    g = torch.Generator().manual_seed(0)
-    batch = Batch(torch.randn(1, 256, 11, generator=g), torch.rand(1, 256, 3, generator=g),
-                  torch.randn(1, 256, generator=g), torch.randn(1, 256, 11, generator=g),
-                  torch.zeros(1, 256))
-    noise = torch.randn(1, 256, 3, generator=g)
+    matmul = torch.backends.mkldnn.matmul
+    default_precision = matmul.fp32_precision
     out = {}
-    for name, autocast in (("fp32", False), ("bf16 autocast", True)):
-        for _ in range(5):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
-                agent._gradient_step(batch, noise)
-        start = time.perf_counter()
-        for _ in range(calls):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
-                agent._gradient_step(batch, noise)
-        out[name] = round(1000 * (time.perf_counter() - start) / calls, 3)
-    out["bf16 / fp32"] = round(out["bf16 autocast"] / out["fp32"], 3)
+    for members in (1, 3):
+        contexts = [TrainContext(env_id="Hopper-v5", seed=seed, total_steps=10**6,
+                                 eval_interval=HUGE, eval_episodes=1)
+                    for seed in range(members)]
+        agent = stacked_agent(BatchContext(contexts),
+                              [get_algorithm("sac").make_config({})] * members, twin_q=False)
+        g = torch.Generator().manual_seed(0)
+        batch = Batch(torch.randn(members, 256, 11, generator=g),
+                      torch.rand(members, 256, 3, generator=g),
+                      torch.randn(members, 256, generator=g),
+                      torch.randn(members, 256, 11, generator=g), torch.zeros(members, 256))
+        noise = torch.randn(members, 256, 3, generator=g)
+        modes = [("fp32", False, "ieee"), ("fp32, bf16 products", False, "bf16")]
+        if members == 1:
+            modes.insert(1, ("bf16 autocast", True, "ieee"))
+        for name, autocast, precision in modes:
+            matmul.fp32_precision = precision
+            try:
+                for _ in range(5):
+                    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+                        agent._gradient_step(batch, noise)
+                start = time.perf_counter()
+                for _ in range(calls):
+                    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+                        agent._gradient_step(batch, noise)
+            finally:
+                matmul.fp32_precision = default_precision
+            out[f"{name} N={members}"] = round(1000 * (time.perf_counter() - start) / calls, 3)
+        out[f"bf16 products / fp32 N={members}"] = round(
+            out[f"fp32, bf16 products N={members}"] / out[f"fp32 N={members}"], 3)
+    out["bf16 autocast / fp32 N=1"] = round(out["bf16 autocast N=1"] / out["fp32 N=1"], 3)
     return out
 
 
