@@ -15,13 +15,13 @@ import json
 import sys
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from baselines.drl_eg import demo_state_spacing, functional_guider  # noqa: E402
+from envs import make_env  # noqa: E402
 from replicate.demos import default_demo_path, load_demos  # noqa: E402
 
 
@@ -30,7 +30,7 @@ def guider_episodes(env_id: str, episodes: int, noise_std: float) -> dict:
     states = np.asarray(demos.observations, dtype=np.float64)
     actions = np.asarray(demos.actions, dtype=np.float64)
     tree = cKDTree(states)
-    env = gym.make(env_id)
+    env = make_env(env_id)  # the adapter training uses (float32 observations)
     low, high = env.action_space.low, env.action_space.high
     rng = np.random.default_rng(0)
     rows = []
