@@ -4,7 +4,9 @@
 # Hopper-v5, then HalfCheetah-v5: claim 2's reference, which needs no T2 rule) and, on the
 # cores, the one-run cells that finish within it (Fig. 3's PPO and PPO+BC, the sparse
 # dm-control tasks' DDPGfD). Every grid trains only what the store lacks; each job's log is
-# LOGDIR/<job>.log. dm-control must be installed there (benchmarks/gpu_carry.sh).
+# LOGDIR/<job>.log. Eleven training processes and the batch's env workers: about the 16 cores
+# (the first short-cells sitting ran 27 processes there and its GPU batches slowed to 133
+# steps/s). dm-control must be installed there (benchmarks/gpu_carry.sh).
 # usage (on the lent machine, after gpu_carry.sh's install line):
 #   benchmarks/device_detached.sh start /tmp/sitting benchmarks/gpu_loan_jobs.sh /tmp/sitting
 #   benchmarks/device_detached.sh wait /tmp/sitting $OUT 590     (again while "running")
@@ -18,11 +20,11 @@ trap 'kill $(jobs -p) 2>/dev/null' TERM
     "$python" -m replicate fig3 --profile reduced --algos sac --envs Hopper-v5 HalfCheetah-v5 \
         --batch 5 --workers 1 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
         $dry > "$logs/fig3-sac.log" 2>&1 &
-    "$python" -m replicate fig3 --profile reduced --algos ppo ppo-bc --workers 8 \
+    "$python" -m replicate fig3 --profile reduced --algos ppo ppo-bc --workers 6 \
         --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
         > "$logs/fig3-ppo.log" 2>&1 &
     "$python" -m replicate compare-rlfd --profile reduced --envs $sparse --algos ddpgfd \
-        --workers 5 --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
+        --workers 4 --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
         > "$logs/rlfd-sparse-ddpgfd.log" 2>&1 &
 }
 status=0
