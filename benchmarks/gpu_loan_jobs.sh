@@ -5,8 +5,8 @@
 # cores, the one-run cells that finish within it (Fig. 3's PPO and PPO+BC, the sparse
 # dm-control tasks' DDPGfD). Every grid trains only what the store lacks; each job's log is
 # LOGDIR/<job>.log. Eleven training processes and the batch's env workers: about the 16 cores
-# (the first short-cells sitting ran 27 processes there and its GPU batches slowed to 133
-# steps/s). dm-control must be installed there (benchmarks/gpu_carry.sh).
+# (the first short-cells sitting ran about 27 there, its GPU batches at 133 batch steps/s,
+# the cause not measured). dm-control must be installed there (benchmarks/gpu_carry.sh).
 # usage (on the lent machine, after gpu_carry.sh's install line):
 #   benchmarks/device_detached.sh start /tmp/sitting benchmarks/gpu_loan_jobs.sh /tmp/sitting
 #   benchmarks/device_detached.sh wait /tmp/sitting $OUT 590     (again while "running")
