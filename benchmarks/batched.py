@@ -15,6 +15,7 @@ Each measurement trains from scratch: ``WARMUP`` steps from the initial policy, 
 measurement so that a cut-off run keeps what it finished.
 
     python benchmarks/batched.py --cpu
+    python benchmarks/batched.py --update-precision --out reports/bench/bf16_products.json
     python benchmarks/batched.py --gpu --out reports/bench/batched_gpu.json
 """
 
@@ -320,6 +321,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cpu", action="store_true", help="the CPU section")
     parser.add_argument("--gpu", action="store_true", help="the GPU section")
+    parser.add_argument("--update-precision", action="store_true",
+                        help="only the CPU section's update timings (fp32, bf16 autocast, "
+                             "bf16 products)")
     parser.add_argument("--steps", type=int, default=1000,
                         help="timed env steps per member after the warm-up")
     parser.add_argument("--env-workers", type=int, default=max(0, (os.cpu_count() or 1) - 2))
@@ -341,6 +345,8 @@ def main() -> None:
         gpu_section(args.steps, write, args.env_workers)
     if args.cpu:
         cpu_section(args.steps, write)
+    elif args.update_precision:
+        write("cpu", {"update ms": update_precision()})
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 # One command on a lent GPU machine for the open cells whose runs finish inside one device
 # command (at most 10 minutes). A 200k-step MuJoCo batch does not: about 2.3 ms a gradient
 # step plus five 1000-step evaluation episodes every 5000 steps is over 9 minutes on an
-# H100/H200 alone (reports/bench/batched_gpu.json), and no checkpoint can come back.
+# H200 alone (reports/bench/batched_gpu.json), and no checkpoint can come back.
 # What does, side by side until SECONDS (every grid trains only what the store lacks):
 #  - on the GPU, the comparison's sparse dm-control tasks at the reduced budget (50k steps):
 #    SAC and DRL-EG as seed batches of 5, two at a time; IBRL and JSRL one run per process;
