@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # The jobs of one whole GPU loan (about 12 minutes of training), for
-# benchmarks/device_detached.sh: one 200k-step MuJoCo seed batch of 5 on the GPU (SAC on
-# Hopper-v5: claim 2's reference, which needs no T2 rule) and, at a lower priority on the
-# cores, one-run cells (Fig. 3's PPO and PPO+BC, the sparse dm-control tasks' DDPGfD).
-# Whether the batch fits the loan is not measured yet: the bench's H200 step times give
-# about 10 minutes alone, and the first short-cells sitting's batches, sharing the GPU and
-# about 27 processes on the 16 cores, ran at 133 batch steps/s, which would need 25. So
-# only 8 one-run processes here, niced. Every grid trains only what the store lacks; each
-# job's log is LOGDIR/<job>.log. dm-control must be installed there (gpu_carry.sh).
+# benchmarks/device_detached.sh, chosen so that every run can finish inside the loan (a
+# checkpoint cannot come back: over the 16 MiB a returned file may have). On the GPU: the
+# comparison's ball_in_cup SAC and DRL-EG, seed batches of 5 at the reduced budget (50k
+# steps; cartpole's batches of 5 took 377 s each on an H100 beside other work). On the
+# cores, niced: the sparse tasks' one-run cells (DDPGfD, JSRL, IBRL, RLPD; about 6-10 min
+# a run) and Fig. 3's PPO and PPO+BC on Ant-v5 (3-5 min a run). A 200k-step MuJoCo seed
+# batch is left to CPU sittings: whether it fits a loan is not measured (the bench's H200
+# step times give about 10 minutes alone, more beside other work). Every grid trains only
+# what the store lacks; each job's log is LOGDIR/<job>.log. dm-control must be installed
+# there (gpu_carry.sh).
 # usage (on the lent machine, after gpu_carry.sh's install line):
 #   benchmarks/device_detached.sh start /tmp/sitting benchmarks/gpu_loan_jobs.sh /tmp/sitting
 #   benchmarks/device_detached.sh wait /tmp/sitting $OUT 570     (again while "running")
@@ -18,15 +20,15 @@ sparse="dm_control/cartpole-swingup_sparse-v0 dm_control/ball_in_cup-catch-v0"
 trap 'kill $(jobs -p) 2>/dev/null' TERM
 # shellcheck disable=SC2086  # $sparse and $dry split on purpose
 {
-    "$python" -m replicate fig3 --profile reduced --algos sac --envs Hopper-v5 \
-        --batch 5 --workers 1 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
-        $dry > "$logs/fig3-sac.log" 2>&1 &
-    nice -n 10 "$python" -m replicate fig3 --profile reduced --algos ppo ppo-bc --workers 4 \
-        --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
-        > "$logs/fig3-ppo.log" 2>&1 &
+    "$python" -m replicate compare-rlfd --profile reduced --envs dm_control/ball_in_cup-catch-v0 \
+        --algos sac drl-eg --batch 5 --workers 2 --device cuda --checkpoint-interval 0 \
+        --out "$(mktemp -d)" $dry > "$logs/rlfd-cup-batches.log" 2>&1 &
     nice -n 10 "$python" -m replicate compare-rlfd --profile reduced --envs $sparse \
-        --algos ddpgfd --workers 4 --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" \
-        $dry > "$logs/rlfd-sparse-ddpgfd.log" 2>&1 &
+        --algos ddpgfd jsrl ibrl rlpd --workers 10 --device cpu --checkpoint-interval 0 \
+        --out "$(mktemp -d)" $dry > "$logs/rlfd-sparse-one-run.log" 2>&1 &
+    nice -n 10 "$python" -m replicate fig3 --profile reduced --algos ppo ppo-bc --envs Ant-v5 \
+        --workers 2 --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
+        > "$logs/fig3-ppo-ant.log" 2>&1 &
 }
 status=0
 for job in $(jobs -p); do wait "$job" || status=$?; done
