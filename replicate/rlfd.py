@@ -36,6 +36,9 @@ RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"
 CARTPOLE_SPARSE = "dm_control/cartpole-swingup_sparse-v0"
 BALL_IN_CUP = "dm_control/ball_in_cup-catch-v0"
+# Reward only in goal states: RLPD's official runs on such tasks (Antmaze, Adroit binary) set
+# backup_entropy=False; its locomotion runs keep the default (on), as MuJoCo and MountainCar do here.
+SPARSE_TASKS = (CARTPOLE_SPARSE, BALL_IN_CUP)
 # Budgets (env steps, evaluation interval) per profile. MountainCar's match Fig. 3's, so its
 # SAC, DRL-EG and DDPGfD runs are shared with that figure. The sparse dm-control budgets are
 # those their dense experts needed (cartpole 40k steps, ball-in-cup 20k) with room to spare.
@@ -79,6 +82,8 @@ def rlfd_grid(profile: Profile, seeds: int | None = None, algorithms: tuple[str,
             hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
                 hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
+            if algo == "rlpd" and env_id in SPARSE_TASKS:
+                hyper["backup_entropy"] = False
             specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes,
                               hyper) for seed in range(n_seeds)]
     return specs, skipped

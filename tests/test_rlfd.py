@@ -6,7 +6,9 @@ import pytest
 
 from replicate.cli import main
 from replicate.errors import HarnessError
-from replicate.rlfd import CURVE_FRACTIONS, compare, normalised, random_return
+from replicate.profiles import get_profile
+from replicate.rlfd import (CURVE_FRACTIONS, SPARSE_TASKS, compare, normalised, random_return,
+                            rlfd_grid)
 from replicate.runner import Run
 
 TASK = "MountainCarContinuous-v0"
@@ -26,6 +28,14 @@ def test_normalised_scores_put_random_at_0_and_the_demonstrations_at_1():
                                [0.0, 0.5, 1.0])
     with pytest.raises(HarnessError, match="not above random"):
         normalised(np.array([1.0]), 5.0, 5.0)
+
+
+def test_rlpd_backs_up_the_entropy_except_on_sparse_reward_tasks():
+    # as RLPD's official runs: off on its sparse tasks, the config's default elsewhere
+    specs, _ = rlfd_grid(get_profile("reduced"), seeds=1, algorithms=("rlpd",))
+    backup = {spec.env_id: spec.hyperparameters.get("backup_entropy") for spec in specs}
+    assert {env for env, value in backup.items() if value is False} == set(SPARSE_TASKS)
+    assert all(backup[env] is None for env in backup if env not in SPARSE_TASKS)
 
 
 def test_compare_judges_drl_eg_against_each_method_per_task():
