@@ -440,6 +440,15 @@ def t2_rule_standing(env_id: str, store: Path, profile: str) -> dict[str, Any] |
     return dict(standing, profile=profile, fixes_the_rule=profile == RULE_PROFILE)
 
 
+def _shown_path(path: str) -> str:
+    """``path`` relative to the working directory when inside it (a report rebuilt in another
+    checkout names no directory of this machine), else relative to the project if it can be."""
+    try:
+        return Path(path).resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return portable_path(path)
+
+
 def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
                           env_id: str, study_name: str, storage: str,
                           failed: list[tuple[str, str]], out_dir: Path,
@@ -476,7 +485,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
         "spacing": spacing,
         "zero_check": zero_threshold_equals_sac(cells, sac_runs), "sac_final": sac_final,
         "steps": profile.steps[env_id], "study_name": study_name,
-        "storage": (portable_path(storage.split("///")[-1]) if storage.startswith("sqlite")
+        "storage": (_shown_path(storage.split("///")[-1]) if storage.startswith("sqlite")
                     else "(database URL)"),
         "failed": failed, "always": ALWAYS, "sac_runs": [r.path.name for r in sac_runs],
         "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}

@@ -111,8 +111,9 @@ def _claim(claim_id: int, title: str, paper: str, parts: list[dict], groups: lis
     else:
         verdict = combine([p["verdict"] for p in parts])
     return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict, "parts": parts,
-            "effect": effect, "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id}"
-                                                    for g in groups}),
+            "effect": effect,
+            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({len(g.seeds)} seeds)"
+                                  for g in groups}),
             "seeds": sorted({len(g.seeds) for g in groups})}
 
 
@@ -265,7 +266,8 @@ BUDGET_NOTES = {
        "here say that guidance does not slow SAC early; they cannot say the two end equal.",
     3: "At {steps:,} steps a lead of DRL-EG on Walker2d and Ant shows faster early learning "
        "(the paper's sample-efficiency claim); reaching the demonstrations' return may need "
-       "the paper's full budget, so a miss on that part is not a refutation.",
+       "the paper's full budget, so a miss on that part leaves the claim not reproduced at "
+       "this budget, not refuted at the paper's.",
     4: "Instability is measured over {steps:,} steps: drops late in training, which the "
        "paper's curves show on Ant, fall outside this budget.",
     5: "At {steps:,} steps a seed that SAC has not yet escaped from may still escape later; "

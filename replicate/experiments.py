@@ -583,10 +583,16 @@ def stored_and_absent(specs: list[RunSpec], store: Path
     return runs, absent
 
 
-def absent_cell(spec: RunSpec, command: str) -> tuple[str, str, str]:
-    """A report's (env, algo, reason) line for a run not in the store yet."""
-    return (spec.env_id, spec.algo,
-            f"seed {spec.seed} not in the store yet (run `{command}` to train it)")
+def absent_cells(specs: list[RunSpec], command: str) -> list[tuple[str, str, str]]:
+    """A report's (env, algo, reason) line per cell for the runs not in the store yet, with
+    the seeds each cell lacks."""
+    seeds: dict[tuple[str, str], list[int]] = {}
+    for spec in specs:
+        seeds.setdefault((spec.env_id, spec.algo), []).append(spec.seed)
+    return [(env_id, algo, f"{'seed' if len(lacking) == 1 else 'seeds'} "
+                           f"{', '.join(map(str, sorted(lacking)))} not in the store yet "
+                           f"(run `{command}` to train {'it' if len(lacking) == 1 else 'them'})")
+            for (env_id, algo), lacking in seeds.items()]
 
 
 def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
@@ -598,7 +604,7 @@ def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], pr
     runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None
-    return GridOutcome(runs, [], None, skipped + [absent_cell(s, command) for s in absent])
+    return GridOutcome(runs, [], None, skipped + absent_cells(absent, command))
 
 
 def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
@@ -626,7 +632,7 @@ def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, comman
     if len(chosen) == len(specs) or dry_run:
         return outcome
     outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
-    outcome.skipped = [absent_cell(spec, command) for spec in absent if spec not in chosen]
+    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command)
     return outcome
 
 

@@ -282,7 +282,9 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     budgets = [{"env_id": env_id, "steps": profile.steps[env_id],
                 "eval_interval": profile.eval_interval[env_id],
                 "eval_episodes": profile.eval_episodes,
-                "seeds": sorted({r.spec["seed"] for r in runs if r.spec["env_id"] == env_id}),
+                "seeds": {algo: sorted(r.spec["seed"] for r in members)
+                          for (env, algo), members in sorted(group_runs(runs).items())
+                          if env == env_id},
                 "paper": PAPER_BUDGETS.get(env_id, "-")} for env_id in profile.steps]
     context = {
         "title": title, "profile": profile, "paper_seeds": PAPER_SEEDS_FIG3,
@@ -327,7 +329,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                          out_dir: Path, guidance: list[dict[str, Any]] | None = None) -> Path:
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
-    from replicate.claims import ANT, claim_5
+    from replicate.claims import ANT, budget_note, claim_5
     from replicate.figures import paired_curves_png
     from replicate.stats import paired_difference
 
@@ -353,7 +355,9 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                   "high": float(estimate.high), "p_value": p_value}
     claim = None
     if env_id == ANT and pairs:
-        claim = claim_5(claim_groups(outcome.runs), {}, rng)
+        groups = claim_groups(outcome.runs)
+        claim = claim_5(groups, {}, rng)
+        claim["budget_note"] = budget_note(5, groups)
         if not profile.meaningful:
             claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"
     panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy(),

@@ -1,6 +1,7 @@
 """The committed reports rebuild, number for number, from the committed run store alone."""
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,15 @@ def test_every_committed_report_has_its_runs_committed_unless_it_predates_the_st
         if absent:
             missing[report.relative_to(ROOT / "reports").as_posix()] = len(absent)
     assert set(missing) == PREDATE_THE_STORE, missing
+
+
+def test_committed_reports_and_runs_name_no_directory_of_the_machine_that_made_them():
+    absolute = re.compile(r"(?<![\w.:/])/(?:work|tmp|home|root|Users|scratch)/")
+    files = [p for p in (ROOT / "reports").rglob("*") if p.suffix in (".html", ".json")
+             and "smoke" not in p.parts and "bench" not in p.parts]  # a bench records its command
+    files += [p for p in STORE.glob("*/*.json")]
+    offending = [p.relative_to(ROOT).as_posix() for p in files if absolute.search(p.read_text())]
+    assert not offending, offending
 
 
 @pytest.mark.parametrize("report", [p for p in _committed()

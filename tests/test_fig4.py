@@ -125,3 +125,28 @@ def test_guided_share_weighs_each_points_fraction_by_the_steps_it_covers(tmp_pat
     assert Run(tmp_path, {}, curve, {}).guided_share == (50 + 0 + 50) / 250
     ppo = curve.assign(guided_fraction=math.nan)  # an algorithm without a guider
     assert math.isnan(Run(tmp_path, {}, ppo, {}).guided_share)
+
+
+def test_an_ant_fig4_below_the_papers_budget_says_what_it_can_show(tmp_path):
+    import numpy as np
+    import pandas as pd
+
+    from replicate.profiles import GridOutcome, get_profile
+    from replicate.report import write_figure4_report
+    from replicate.runner import Run
+
+    def run(algo: str, seed: int, end: float) -> Run:
+        curve = pd.DataFrame({"step": [0, 250_000, 500_000], "return_mean": [0.0, end / 2, end],
+                              "returns": ["[0.0]"] * 3, "guided_fraction": [np.nan, 0.1, 0.1],
+                              "train_return": [np.nan] * 3})
+        spec = {"env_id": "Ant-v5", "algo": algo, "seed": seed, "total_steps": 500_000}
+        return Run(tmp_path / f"{algo}-{seed}", spec, curve, {"git_revision": "abc"})
+
+    runs = [run(algo, seed, end + seed) for seed in range(4)
+            for algo, end in (("sac", 900.0), ("drl-eg", 1200.0))]
+    out = tmp_path / "fig4"
+    write_figure4_report(GridOutcome(runs, [], None), get_profile("reduced"), "Ant-v5", out)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["claim"]["budget_note"].startswith("At 500,000 steps")
+    html = (out / "index.html").read_text()
+    assert "What this budget can show" in html and "Profile <strong>reduced</strong>" in html
