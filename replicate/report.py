@@ -23,6 +23,7 @@ from replicate.runner import Run
 from replicate.claims import Group, judge_claims
 from replicate.published import published_points
 from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
+                             substream,
                              probability_of_improvement, score_profile, stratified_bootstrap_ci)
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
@@ -56,15 +57,16 @@ def curve_matrix(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(common), matrix
 
 
-def summarise(runs: list[Run], rng: np.random.Generator
-              ) -> tuple[list[CurveBand], list[FinalReturns]]:
+def summarise(runs: list[Run], seed: int) -> tuple[list[CurveBand], list[FinalReturns]]:
+    """Each (env, algorithm)'s curve band and final returns, bootstrapped on the cell's own
+    stream."""
     bands, finals = [], []
     for (env_id, algo), members in sorted(group_runs(runs).items()):
         steps, matrix = curve_matrix(members)
-        band = bootstrap_mean(matrix, rng)
+        band = bootstrap_mean(matrix, substream(seed, env_id, algo, "curve"))
         bands.append(CurveBand(algo, env_id, steps, band.value, band.low, band.high, len(members)))
         last = matrix[:, -1]
-        est = bootstrap_mean(last, rng)
+        est = bootstrap_mean(last, substream(seed, env_id, algo, "final"))
         finals.append(FinalReturns(env_id, algo, [r.spec["seed"] for r in members], last,
                                    float(est.value[0]), float(est.low[0]), float(est.high[0])))
     return bands, finals
@@ -128,10 +130,11 @@ REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstratio
 
 
 def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
-                    rng: np.random.Generator) -> list[dict[str, Any]]:
+                    seed: int) -> list[dict[str, Any]]:
     """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
-    ``REACH_FRACTION`` of the demonstrations' return, each with a bootstrap CI over seeds."""
-    def estimate(values: np.ndarray) -> dict[str, Any]:
+    ``REACH_FRACTION`` of the demonstrations' return, each with a bootstrap CI over seeds (on
+    the cell's own stream)."""
+    def estimate(values: np.ndarray, rng: np.random.Generator) -> dict[str, Any]:
         values = values[np.isfinite(values)]
         if not len(values):
             return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
@@ -145,14 +148,15 @@ def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str
             continue
         level = REACH_FRACTION * demo_returns[env_id]
         rows.append({"env_id": env_id, "algo": algo, "n": len(group.seeds),
-                     "area": estimate(group.areas),
-                     "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
+                     "area": estimate(group.areas, substream(seed, env_id, algo, "area")),
+                     "reach": estimate(steps_to_reach(group.steps, group.curves, level),
+                                       substream(seed, env_id, algo, "reach")),
                      "level": level})
     return rows
 
 
 def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int],
-                   rng: np.random.Generator) -> list[dict[str, Any]]:
+                   seed: int) -> list[dict[str, Any]]:
     """Our SAC beside published SAC at every published budget within ours."""
     rows = []
     for env_id in sorted({e for e, _ in groups}):
@@ -163,7 +167,7 @@ def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int]
             ours = None
             if sac is not None and sac.steps is not None and point.steps in set(sac.steps):
                 column = sac.curves[:, list(sac.steps).index(point.steps)]
-                est = bootstrap_mean(column, rng)
+                est = bootstrap_mean(column, substream(seed, env_id, "sac", str(point.steps)))
                 ours = {"mean": float(est.value[0]), "low": float(est.low[0]),
                         "high": float(est.high[0]), "n": len(column)}
             rows.append({"env_id": env_id, "steps": point.steps, "mean": point.mean,
@@ -255,9 +259,8 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
                          guidance: list[dict[str, Any]] | None = None) -> Path:
     """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
     ``guidance`` (``experiments.guidance_settings``) is printed beside the claims."""
-    rng = np.random.default_rng(REPORT_SEED)
     runs = outcome.runs
-    bands, finals = summarise(runs, rng) if runs else ([], [])
+    bands, finals = summarise(runs, REPORT_SEED) if runs else ([], [])
     demo_lines = {}
     demos = {}
     for run in runs:
@@ -267,9 +270,9 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
             demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
     groups = claim_groups(runs)
     claims = judge_claims(groups, demo_lines, REPORT_SEED, profile.meaningful)
-    aggregate = aggregate_metrics(groups, demo_lines, rng)
-    efficiency = efficiency_rows(groups, demo_lines, rng)
-    published = published_rows(groups, profile.steps, rng)
+    aggregate = aggregate_metrics(groups, demo_lines, substream(REPORT_SEED, "aggregate"))
+    efficiency = efficiency_rows(groups, demo_lines, REPORT_SEED)
+    published = published_rows(groups, profile.steps, REPORT_SEED)
     title = f"Fig. 3 replication, profile '{profile.name}'"
     points = {env_id: [(p.steps, p.mean, p.std) for p in published_points(env_id, steps)
                        if p.source == "tianshou"]

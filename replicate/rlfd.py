@@ -30,7 +30,7 @@ from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
 from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
-                             score_profile, stratified_bootstrap_ci)
+                             score_profile, stratified_bootstrap_ci, substream)
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"
@@ -124,9 +124,9 @@ def _at_fractions(run: Run, budget: int) -> np.ndarray:
     return np.interp(CURVE_FRACTIONS * budget, steps, run.curve["return_mean"].to_numpy(float))
 
 
-def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random.Generator
-            ) -> dict[str, Any]:
-    """The statistics of the report from complete runs (pure given the runs and rng)."""
+def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> dict[str, Any]:
+    """The statistics of the report from complete runs (pure given the runs and seed): each
+    verdict bootstraps on its own stream, so cells added later leave it as it was."""
     by_cell: dict[tuple[str, str], list[Run]] = {}
     for run in runs:
         by_cell.setdefault((run.spec["env_id"], run.spec["algo"]), []).append(run)
@@ -161,7 +161,8 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
         for algo in algos:
             if algo == "drl-eg" or (task, algo) not in by_cell:
                 continue
-            diff = bootstrap_mean_difference(scores(task, "drl-eg"), scores(task, algo), rng)
+            diff = bootstrap_mean_difference(scores(task, "drl-eg"), scores(task, algo),
+                                             substream(seed, task, algo, "verdict"))
             verdict = ("DRL-EG better" if diff.low > 0 else "DRL-EG worse" if diff.high < 0
                        else "inconclusive")
             verdicts.append({"env_id": task, "other": algo, "effect": float(diff.value),
@@ -174,6 +175,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], rng: np.random
     if full and algos:
         n = min(len(by_cell[(t, a)]) for t in full for a in algos)
         if n >= 2:
+            rng = substream(seed, "aggregate")
             matrix = {a: np.stack([scores(t, a)[:n] for t in full], axis=1) for a in algos}
             taus = np.linspace(0.0, 1.5, 61)
             iqm, profiles, efficiency = {}, {}, {}
@@ -234,7 +236,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     from replicate.report import _atomic_write, summary_bytes
 
     budgets = RLFD_BUDGETS[profile.name]
-    result = compare(outcome.runs, budgets, np.random.default_rng(REPORT_SEED))
+    result = compare(outcome.runs, budgets, REPORT_SEED)
     aggregate = result["aggregate"]
     context = {
         "title": f"DRL-EG against IBRL, RLPD and JSRL, profile '{profile.name}'",

@@ -7,6 +7,7 @@ column of final returns). No function touches a global random state.
 from __future__ import annotations
 
 import warnings
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,12 @@ from scipy import stats
 
 CONFIDENCE = 0.95
 N_BOOTSTRAP = 2000
+
+
+def substream(seed: int, *keys: str) -> np.random.Generator:
+    """A bootstrap stream of its own for one cell of a report (``keys``: env, algorithm,
+    statistic), so that adding other cells to a report leaves this cell's interval as it was."""
+    return np.random.default_rng([seed, *(zlib.crc32(key.encode()) for key in keys)])
 
 
 @dataclass(frozen=True)

@@ -79,13 +79,29 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     steps = np.array([0, 100_000, 200_000])
     curves = np.array([[0, 900, 2000.0], [0, 1100, 2400.0]])
     groups = {("Ant-v5", "sac"): Group("Ant-v5", "sac", [0, 1], curves[:, -1], curves, steps)}
-    rows = published_rows(groups, {"Ant-v5": 200_000}, np.random.default_rng(0))
+    rows = published_rows(groups, {"Ant-v5": 200_000}, 0)
     tianshou = [r for r in rows if r["source"] == "tianshou"]
     assert [r["steps"] for r in tianshou] == [100_000, 200_000]  # none beyond our budget
     assert tianshou[1]["ours"]["mean"] == 2200.0 and tianshou[1]["ours"]["n"] == 2
     assert tianshou[1]["mean"] == published_points("Ant-v5", 200_000)[1].mean == 2133.0
-    eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, np.random.default_rng(0))
+    eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, 0)
     assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200
+
+
+def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
+    from replicate.report import efficiency_rows, summarise
+    from tests.test_rlfd import _run
+
+    cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]
+    other = [_run("ppo", seed, [0.0, 10.0 * seed, 30.0 - seed]) for seed in range(4)]
+    alone, joined = summarise(cell, 0)[1][0], summarise(other + cell, 0)[1]
+    assert [(f.low, f.high) for f in joined if f.algo == "sac"] == [(alone.low, alone.high)]
+    from replicate.report import claim_groups
+
+    demo = {"MountainCarContinuous-v0": 95.0}
+    area = efficiency_rows(claim_groups(cell), demo, 0)[0]["area"]
+    assert [r["area"] for r in efficiency_rows(claim_groups(other + cell), demo, 0)
+            if r["algo"] == "sac"] == [area]
 
 
 def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3, tmp_path,

@@ -42,7 +42,7 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
     runs = [_run("drl-eg", s, [0, 50 + s, 90 + s]) for s in range(4)]
     runs += [_run("sac", s, [0, 0, s * 0.1]) for s in range(4)]  # learns nothing
     runs += [_run("ibrl", s, [0, 80, 90 + s]) for s in range(4)]  # as good, earlier
-    result = compare(runs, {TASK: (1000, 500)}, np.random.default_rng(0))
+    result = compare(runs, {TASK: (1000, 500)}, 0)
     verdicts = {v["other"]: v["verdict"] for v in result["verdicts"]}
     assert verdicts == {"sac": "DRL-EG better", "ibrl": "inconclusive"}
     random = random_return(TASK)
@@ -56,6 +56,10 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
     assert value[0.5] > dict(zip(CURVE_FRACTIONS, aggregate["efficiency"]["drl-eg"][0]))[0.5]
     improvement = {p["other"]: p["value"] for p in aggregate["improvement"]}
     assert improvement["sac"] == 1.0 and 0.0 < improvement["ibrl"] < 1.0
+    # a method added later leaves the verdicts already there as they were
+    more = compare(runs + [_run("jsrl", s, [0, 70, 80 + s]) for s in range(4)],
+                   {TASK: (1000, 500)}, 0)
+    assert [v for v in more["verdicts"] if v["other"] != "jsrl"] == result["verdicts"]
 
 
 @pytest.mark.slow
