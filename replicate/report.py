@@ -23,8 +23,8 @@ from replicate.runner import Run
 from replicate.claims import Group, judge_claims
 from replicate.published import published_points
 from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
-                             substream,
-                             probability_of_improvement, score_profile, stratified_bootstrap_ci)
+                             probability_of_improvement, score_profile, stratified_bootstrap_ci,
+                             substream)
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
 
