@@ -37,7 +37,8 @@ MOUNTAINCAR = "MountainCarContinuous-v0"
 CARTPOLE_SPARSE = "dm_control/cartpole-swingup_sparse-v0"
 BALL_IN_CUP = "dm_control/ball_in_cup-catch-v0"
 # Reward only in goal states: RLPD's official runs on such tasks (Antmaze, Adroit binary) set
-# backup_entropy=False; its locomotion runs keep the default (on), as MuJoCo and MountainCar do here.
+# backup_entropy=False; its locomotion runs keep the default (on), as MuJoCo and MountainCar
+# do here.
 SPARSE_TASKS = (CARTPOLE_SPARSE, BALL_IN_CUP)
 # Budgets (env steps, evaluation interval) per profile. MountainCar's match Fig. 3's, so its
 # SAC, DRL-EG and DDPGfD runs are shared with that figure. The sparse dm-control budgets are
