@@ -113,8 +113,7 @@ def _claim(claim_id: int, title: str, paper: str, parts: list[dict], groups: lis
     return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict, "parts": parts,
             "effect": effect,
             "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({len(g.seeds)} seeds)"
-                                  for g in groups}),
-            "seeds": sorted({len(g.seeds) for g in groups})}
+                                  for g in groups})}
 
 
 def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> list[str]:

@@ -89,15 +89,13 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
 
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
-    from replicate.report import efficiency_rows, summarise
+    from replicate.report import claim_groups, efficiency_rows, summarise
     from tests.test_rlfd import _run
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]
     other = [_run("ppo", seed, [0.0, 10.0 * seed, 30.0 - seed]) for seed in range(4)]
     alone, joined = summarise(cell, 0)[1][0], summarise(other + cell, 0)[1]
     assert [(f.low, f.high) for f in joined if f.algo == "sac"] == [(alone.low, alone.high)]
-    from replicate.report import claim_groups
-
     demo = {"MountainCarContinuous-v0": 95.0}
     area = efficiency_rows(claim_groups(cell), demo, 0)[0]["area"]
     assert [r["area"] for r in efficiency_rows(claim_groups(other + cell), demo, 0)
