@@ -114,8 +114,9 @@ def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = 
                       ) -> list[dict[str, Any]]:
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
-    comes from (``t2_source``), and the share of training steps the guider took in each
-    run. What a report prints beside the claims it judges."""
+    comes from (``t2_source``), the share of training steps the guider took in each run,
+    and whether that share is 0 in every run. What a report prints beside the claims it
+    judges."""
     cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"])
                                                    for r in runs]
     used: dict[tuple[str, str], list[Run]] = {
@@ -130,8 +131,11 @@ def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = 
                    r.spec["hyperparameters"].get("guide_noise_std")) for r in cell_runs]
         uses_t2 = algo in T2_ALGORITHMS
         t2 = sorted({t for t, _ in values if t is not None}) if uses_t2 else []
+        shares = [r.guided_share for r in cell_runs]
         rows.append({"env_id": env_id, "algo": algo, "uses_t2": uses_t2, "runs": len(values),
-                     "guided_share": [r.guided_share for r in cell_runs],
+                     "guided_share": shares,
+                     # then the guider never chose an action: the runs trained as SAC does
+                     "never_guided": bool(shares) and all(share == 0 for share in shares),
                      "t2": t2, "t2_labels": ["always" if t >= ALWAYS_GUIDE else f"{t:g}"
                                              for t in t2],
                      "sigma": sorted({n for _, n in values if n is not None}),

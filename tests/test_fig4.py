@@ -106,6 +106,10 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     assert rows["drl-eg"]["t2"] == [36.3] and rows["drl-eg"]["sigma"] == [0.1]
     assert rows["drl-eg"]["guided_share"] == [0.25]
     assert rows["drl-eg"]["runs"] == 1 and rows["drl-eg-gmm"]["runs"] == 0
+    assert not rows["drl-eg"]["never_guided"] and not rows["drl-eg-gmm"]["never_guided"]
+    run.guided_share = 0.0  # a T2 below every distance the runs met: flagged, not 0.0%
+    rows = {g["algo"]: g for g in guidance_settings("reduced", [run], specs)}
+    assert rows["drl-eg"]["never_guided"] and not rows["drl-eg-gmm"]["never_guided"]
     assert "rule 16x (16 times the median spacing" in rows["drl-eg"]["source"]
     quick = guidance_settings("quick", [run])
     assert quick[0]["source"].endswith("(the spacing rule, 1x)")
