@@ -1,4 +1,4 @@
-"""Seed-batched training: N runs of SAC, twin-Q SAC or DRL-EG in one process.
+"""Seed-batched training: N runs of SAC, twin-Q SAC, DRL-EG or RLPD in one process.
 
 The members of a batch share algorithm, env, budget and network shapes and differ in seed
 (DRL-EG members may also differ in T2 and sigma, which change no shape). Each member is a
@@ -31,18 +31,21 @@ from typing import Any
 import numpy as np
 import torch
 
-from baselines.common.buffer import Batch
+from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkpoint,
                                          save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep, make_adam
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
-from baselines.common.stacked import (StackedMLP, StackedPolicy, StackedReplay, critic_pairs,
+from baselines.common.stacked import (StackedMLP, StackedNormMLP, StackedPolicy, StackedReplay,
+                                      StackedSymmetricReplay, critic_ensembles, critic_pairs,
                                       pair_critics)
 from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
                               fit_neural_guider, functional_discriminator, functional_guider,
                               gmm_discriminator)
+from baselines.ibrl import preloaded_buffer
 from baselines.registry import register_batched
+from baselines.rlpd import RLPDAgent, RLPDConfig, demo_transitions_or_fail
 from baselines.sac import SACAgent, SACConfig, frozen, q_target, v_target
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from envs import make_env
@@ -125,6 +128,17 @@ class StackedActor:
     def act_deterministic(self, obs: np.ndarray) -> np.ndarray:
         obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(self.device)
         return self.policy.deterministic(obs_t[:, None, :])[:, 0].cpu().numpy()
+
+    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
+        """The batch's replay (RLPD's adds the demonstrations beside it)."""
+        return StackedReplay(members, obs_dim, self.act_dim, capacity, self.device)
+
+    def extra_state(self) -> dict[str, Any]:
+        """What a checkpoint keeps beside the modules and the noise (RLPD: its step count)."""
+        return {}
+
+    def load_extra_state(self, state: dict[str, Any]) -> None:
+        pass
 
     def _setup_updates(self, batch_size: int, cuda_graphs: bool) -> None:
         self.batch_size = batch_size
@@ -328,11 +342,145 @@ class StackedTwinQAgent(StackedActor):
                 "alpha": alpha[:, 0], "entropy": -log_prob.detach().mean(-1)}
 
 
+class StackedRLPDAgent(StackedTwinQAgent):
+    """RLPD (``baselines.rlpd``) for N members: twin-Q SAC's stacked policy and temperature,
+    each member's ensemble of LayerNorm critics (its target a minimum over its own random
+    subset of them), minibatches half demonstrations, and ``utd`` critic steps per actor
+    step. On CPU member k draws its noise, subsets and replay rows in its one-run order."""
+
+    def __init__(self, agents: list[RLPDAgent], config: RLPDConfig, demos: ReplayBuffer,
+                 device: str, cuda_graphs: bool = True):
+        self.per_member = config.num_qs
+        self.demos = demos  # the demonstration transitions, as the one-run path loads them
+        super().__init__(agents, config, device, cuda_graphs)
+        self.critic_updates = 0
+        self._critic_graph = GraphedStep(self._sample_and_critic_step, self.device, cuda_graphs)
+
+    @staticmethod
+    def _stack_ensembles(ensembles: list) -> StackedMLP:
+        stacked = StackedTwinQAgent._stack_ensembles(ensembles)
+        if not hasattr(ensembles[0], "norm_gains"):
+            return stacked
+        return StackedNormMLP(list(stacked.weights), list(stacked.biases),
+                              [torch.cat([e.norm_gains[i].detach() for e in ensembles])
+                               for i in range(len(ensembles[0].norm_gains))],
+                              [torch.cat([e.norm_biases[i].detach() for e in ensembles])
+                               for i in range(len(ensembles[0].norm_biases))])
+
+    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
+        return StackedSymmetricReplay(self.demos, members, obs_dim, self.act_dim, capacity,
+                                      self.device)
+
+    def extra_state(self) -> dict[str, Any]:
+        return {"critic_updates": self.critic_updates}
+
+    def load_extra_state(self, state: dict[str, Any]) -> None:
+        self.critic_updates = state["critic_updates"]
+
+    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
+        """One critic step of every member on its own symmetric minibatch; after every
+        ``utd``-th, the actor and temperature steps too. Per-member losses (N,)."""
+        self.critic_updates += 1
+        actor = self.critic_updates % self.config.utd == 0
+        if self.device.type == "cpu":
+            batch = self.buffer.sample(self.batch_size, rngs)
+            return self._rlpd_step(batch, self._cpu_noise(actor), actor)
+        self._size.fill_(self.buffer.size)
+        return (self._update_graph if actor else self._critic_graph)(size=self._size)
+
+    def _cpu_noise(self, actor: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        # member k draws next_noise, its subset, then new_noise, as its one run's update does
+        cfg = self.config
+        next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
+        new_noise = torch.zeros_like(next_noise)
+        subsets = torch.zeros((self.members, cfg.num_min_qs), dtype=torch.long)
+        for k, generator in enumerate(self.generators):
+            next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+            subsets[k] = torch.randperm(cfg.num_qs, generator=generator)[:cfg.num_min_qs]
+            if actor:
+                new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+        return next_noise, subsets, new_noise
+
+    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        cfg = self.config
+        subsets = torch.rand((self.members, cfg.num_qs), device=self.device
+                             ).argsort(dim=-1)[:, :cfg.num_min_qs]
+        return (torch.randn(batch.actions.shape, device=self.device), subsets,
+                torch.randn(batch.actions.shape, device=self.device))
+
+    def _symmetric_batch(self, size: torch.Tensor) -> Batch:
+        half = self.batch_size // 2
+        n_demos = len(self.buffer.demos)
+        demo = torch.minimum((torch.rand((self.members, half), device=self.device)
+                              * n_demos).long(), torch.tensor(n_demos - 1, device=self.device))
+        uniform = torch.rand((self.members, self.batch_size - half), device=self.device)
+        online = torch.minimum((uniform * size).long(), size - 1)
+        return self.buffer.gather_halves(demo, online)
+
+    def _sample_and_update(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+        batch = self._symmetric_batch(size)
+        return self._rlpd_step(batch, self._device_noise(batch), actor=True)
+
+    def _sample_and_critic_step(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+        batch = self._symmetric_batch(size)
+        return self._rlpd_step(batch, self._device_noise(batch), actor=False)
+
+    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
+        return self._rlpd_step(batch, noise, actor=True)
+
+    def _rlpd_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+                   actor: bool) -> dict[str, torch.Tensor]:
+        cfg = self.config
+        next_noise, subsets, new_noise = (t.to(self.device) for t in noise)
+        obs, actions, rows = batch.observations, batch.actions, batch.actions.shape[1]
+        alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
+
+        with torch.no_grad():
+            next_actions, next_log_prob = self.policy.sample(batch.next_observations,
+                                                             noise=next_noise)
+            next_q = critic_ensembles(self.critics_target, batch.next_observations,
+                                      next_actions, self.per_member)  # (N, Q, B)
+            chosen = next_q.gather(1, subsets[:, :, None].expand(-1, -1, rows))
+            next_value = chosen.min(dim=1).values
+            if cfg.backup_entropy:
+                next_value = next_value - alpha * next_log_prob
+            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
+        q = critic_ensembles(self.critics, obs, actions, self.per_member)
+        q_losses = (q - y[:, None]).pow(2).mean(dim=(1, 2))  # per member, as one run's mean
+        self.critic_optimizer.zero_grad()
+        q_losses.sum().backward()
+        self.critic_optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(list(self.critics_target.parameters()),
+                                 list(self.critics.parameters()), cfg.tau)
+        losses = {"q_loss": q_losses.detach()}
+        if not actor:
+            return losses
+
+        new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
+        with frozen(self.critics):
+            q_new = critic_ensembles(self.critics, obs, new_actions, self.per_member).mean(dim=1)
+        policy_losses = (alpha * log_prob - q_new).mean(-1)
+        self.policy_optimizer.zero_grad()
+        policy_losses.sum().backward()
+        self.policy_optimizer.step()
+
+        # RLPD's temperature loss on alpha itself, each member on its own entropy
+        entropy = -log_prob.detach().mean(-1)  # (N,)
+        alpha_losses = self.log_alpha.exp() * (entropy - self.target_entropy)
+        self.alpha_optimizer.zero_grad()
+        alpha_losses.sum().backward()
+        self.alpha_optimizer.step()
+        return {**losses, "policy_loss": policy_losses.detach(), "alpha": alpha[:, 0],
+                "entropy": entropy}
+
+
 def agent_state(agent: StackedActor) -> dict[str, Any]:
     state = {name: copy.deepcopy(getattr(agent, name).state_dict()) for name in agent.MODULES}
     if isinstance(agent, StackedTwinQAgent):
         state["log_alpha"] = agent.log_alpha.detach().cpu().clone()
     state["noise"] = agent.noise_state()
+    state["extra"] = agent.extra_state()
     return state
 
 
@@ -343,6 +491,7 @@ def load_agent_state(agent: StackedActor, state: dict[str, Any]) -> None:
         with torch.no_grad():
             agent.log_alpha.copy_(state["log_alpha"])
     agent.load_noise_state(state["noise"])
+    agent.load_extra_state(state.get("extra", {}))
 
 
 class StackedExplorer:
@@ -478,8 +627,7 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
     seeds, n = bctx.seeds, len(bctx.members)
     envs = EnvBatch(env_id, seeds, bctx.env_workers)
     eval_envs = EnvBatch(env_id, [s + EVAL_SEED_OFFSET for s in seeds], bctx.env_workers)
-    agent.buffer = StackedReplay(n, envs.obs_dim, agent.act_dim,
-                                 min(cfg.buffer_size, total_steps), agent.device)
+    agent.buffer = agent.make_replay(n, envs.obs_dim, min(cfg.buffer_size, total_steps))
     buffer = agent.buffer
     batch_rngs = [np.random.default_rng(seed) for seed in seeds]
     curves: list[list[EvalPoint]] = [[] for _ in range(n)]
@@ -660,6 +808,18 @@ def train_drl_eg_twin_q(bctx: BatchContext, configs: list[DRLEGTwinQConfig]) -> 
     _train_stacked(bctx, configs, twin_q=True, guided=True)
 
 
-__all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent",
+@register_batched("rlpd")
+def train_rlpd(bctx: BatchContext, configs: list[RLPDConfig]) -> None:
+    demos = demo_transitions_or_fail(bctx.members[0].demos)
+    obs_dim, act_dim, _, _ = _space(bctx.shared("env_id"))
+    demo_buffer = preloaded_buffer(demos, obs_dim, act_dim, online_capacity=0)
+    agents = _one_run_agents(bctx, configs, RLPDAgent)
+    if bctx.device != "cpu":  # after the agents, as for the other batches
+        torch.cuda.manual_seed(bctx.seeds[0] + 1)
+    agent = StackedRLPDAgent(agents, configs[0], demo_buffer, bctx.device, bctx.cuda_graphs)
+    run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
+
+
+__all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent", "StackedRLPDAgent",
            "StackedExplorer", "StackedGuidedExplorer", "stacked_explorer",
            "evaluate_members", "run_stacked_off_policy", "stacked_agent"]

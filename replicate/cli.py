@@ -54,9 +54,10 @@ def _parse_overrides(pairs: list[str]) -> dict:
     return overrides
 
 
-DEVICE_HELP = ("where algorithms with a GPU path (SAC, twin-Q SAC, DRL-EG) train: auto takes "
-               "the GPU when torch sees one; cuda fails without one. The others train on CPU. "
-               "Curves are reproducible bit for bit on CPU only")
+DEVICE_HELP = ("where algorithms with a GPU path (the SAC family: SAC, twin-Q SAC, DRL-EG, "
+               "IBRL, JSRL, RLPD) train: auto takes the GPU when torch sees one; cuda fails "
+               "without one. The others train on CPU. Curves are reproducible bit for bit on "
+               "CPU only")
 
 
 def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
@@ -71,9 +72,9 @@ def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) ->
                                  "(default: every worker on the GPU)")
         parser.add_argument("--batch", type=int, default=None, metavar="N",
                             help="train up to N runs that differ only in seed together in "
-                                 "one process (SAC, twin-Q SAC, DRL-EG; the others train one "
-                                 "per process). Default: on a GPU as many as fit its memory "
-                                 "(up to 64), on CPU none")
+                                 "one process (SAC, twin-Q SAC, DRL-EG, RLPD; the others train "
+                                 "one per process). Default: on a GPU as many as fit its "
+                                 "memory (up to 64), on CPU none")
 
 
 def _add_cell_arguments(parser: argparse.ArgumentParser) -> None:

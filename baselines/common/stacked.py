@@ -14,8 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
-from baselines.common.buffer import Batch
+from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.networks import TanhGaussianPolicy
 
 
@@ -55,6 +56,26 @@ class StackedMLP(nn.Module):
         return [(w[k].T.detach(), b[k, 0].detach()) for w, b in zip(self.weights, self.biases)]
 
 
+class StackedNormMLP(StackedMLP):
+    """``StackedMLP`` with LayerNorm (a gain and a bias per member) after every hidden
+    layer, before its ReLU, as RLPD's critics have it; gains and biases (members, 1, width)."""
+
+    def __init__(self, weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor],
+                 norm_gains: Sequence[torch.Tensor], norm_biases: Sequence[torch.Tensor]):
+        super().__init__(weights, biases)
+        self.norm_gains = nn.ParameterList(nn.Parameter(g.detach().clone()) for g in norm_gains)
+        self.norm_biases = nn.ParameterList(nn.Parameter(b.detach().clone()) for b in norm_biases)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        last = len(self.weights) - 1
+        for k, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(bias, x, weight)
+            if k < last:
+                x = F.layer_norm(x, x.shape[-1:]) * self.norm_gains[k] + self.norm_biases[k]
+                x = torch.relu(x)
+        return x
+
+
 class StackedPolicy(TanhGaussianPolicy):
     """Tanh-squashed Gaussian policies of N members: ``TanhGaussianPolicy`` on a stacked
     trunk, so forward, the deterministic action and ``sample(obs, noise=...)`` are its own."""
@@ -89,9 +110,16 @@ def pair_critics(q1: Sequence[nn.Sequential], q2: Sequence[nn.Sequential]) -> St
 
 def critic_pairs(critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
     """Q of both critics of every member: (N, B, .) inputs to (N, 2, B)."""
+    return critic_ensembles(critics, obs, act, 2)
+
+
+def critic_ensembles(critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor,
+                     per_member: int) -> torch.Tensor:
+    """Q of every member's ``per_member`` critics, stacked member-major: (N, B, .) inputs to
+    (N, per_member, B)."""
     members, rows = obs.shape[0], obs.shape[1]
-    pairs = torch.cat([obs, act], dim=-1).unsqueeze(1).expand(-1, 2, -1, -1)
-    return critics(pairs.reshape(2 * members, rows, -1)).view(members, 2, rows)
+    inputs = torch.cat([obs, act], dim=-1).unsqueeze(1).expand(-1, per_member, -1, -1)
+    return critics(inputs.reshape(per_member * members, rows, -1)).view(members, per_member, rows)
 
 
 class StackedReplay:
@@ -126,7 +154,10 @@ class StackedReplay:
 
     def gather(self, indices: torch.Tensor) -> Batch:
         """Member k's rows ``indices[k]`` (N, B) as one stacked batch."""
-        rows = self.data[self._members, indices]
+        return self.split(self.data[self._members, indices])
+
+    def split(self, rows: torch.Tensor) -> Batch:
+        """Stored rows (N, B, width) as a batch."""
         o, a = self.obs_dim, self.act_dim
         return Batch(observations=rows[..., :o], actions=rows[..., o:o + a],
                      rewards=rows[..., o + a], next_observations=rows[..., o + a + 1:2 * o + a + 1],
@@ -148,3 +179,36 @@ class StackedReplay:
         self.data[:, :n] = state["data"].to(self.device)
         self.size = n
         self.position = int(state["position"])
+
+
+class StackedSymmetricReplay(StackedReplay):
+    """RLPD's replay for N members: each member's online rows, kept as ``StackedReplay``
+    keeps them, beside the demonstration transitions all members share (never overwritten).
+    Every sample is half demonstration rows, first, then online rows."""
+
+    def __init__(self, demos: ReplayBuffer, members: int, obs_dim: int, act_dim: int,
+                 capacity: int, device: torch.device):
+        super().__init__(members, obs_dim, act_dim, capacity, device)
+        n = demos.size
+        rows = np.concatenate([demos.observations[:n], demos.actions[:n],
+                               demos.rewards[:n, None], demos.next_observations[:n],
+                               demos.terminated[:n, None]], axis=1)
+        self.demos = torch.from_numpy(np.ascontiguousarray(rows, dtype=np.float32)).to(device)
+
+    def gather_halves(self, demo_indices: torch.Tensor, online_indices: torch.Tensor) -> Batch:
+        """Member k's demonstration rows ``demo_indices[k]`` and then its online rows
+        ``online_indices[k]``, as one stacked batch."""
+        return self.split(torch.cat([self.demos[demo_indices],
+                                     self.data[self._members, online_indices]], dim=1))
+
+    def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
+        """Member k draws ``batch_size // 2`` demonstration rows, then the rest online, from
+        ``rngs[k]`` alone (as ``baselines.rlpd.SymmetricReplay.sample`` draws them)."""
+        half = batch_size // 2
+        demo_rows, online_rows = [], []
+        for rng in rngs:
+            demo_rows.append(rng.integers(0, len(self.demos), size=half))
+            online_rows.append(rng.integers(0, self.size, size=batch_size - half))
+        return self.gather_halves(torch.from_numpy(np.stack(demo_rows)).to(self.device),
+                                  torch.from_numpy(np.stack(online_rows)).to(self.device))
+
