@@ -411,8 +411,10 @@ class StackedRLPDAgent(StackedTwinQAgent):
     def _symmetric_batch(self, size: torch.Tensor) -> Batch:
         half = self.batch_size // 2
         n_demos = len(self.buffer.demos)
-        demo = torch.minimum((torch.rand((self.members, half), device=self.device)
-                              * n_demos).long(), torch.tensor(n_demos - 1, device=self.device))
+        # a bound from a Python number: a tensor made here would copy to the device, which
+        # graph capture forbids
+        demo = (torch.rand((self.members, half), device=self.device) * n_demos).long(
+        ).clamp_(max=n_demos - 1)
         uniform = torch.rand((self.members, self.batch_size - half), device=self.device)
         online = torch.minimum((uniform * size).long(), size - 1)
         return self.buffer.gather_halves(demo, online)

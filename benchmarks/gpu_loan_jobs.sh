@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 from replicate.runner import execute_batch, prepare
 from replicate.spec import RunSpec
-tiny = {"hidden_sizes": (16, 16), "batch_size": 16, "learning_starts": 100}
+tiny = {"hidden_sizes": (16, 16), "batch_size": 16, "learning_starts": 100, "utd": 2}
 specs = [RunSpec("rlpd", "MountainCarContinuous-v0", s, 600, 200, 1, tiny) for s in (0, 1)]
 outcome = execute_batch([prepare(s) for s in specs], Path(tempfile.mkdtemp()), device="cuda")
 assert not outcome.failed and len(outcome.runs) == 2, outcome.failed

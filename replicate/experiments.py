@@ -346,14 +346,16 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
 
 def batch_bytes(prepared: PreparedRun, members: int) -> int:
     """Device memory of ``members`` runs like ``prepared`` in one batch: their replay, plus
-    their networks, optimiser state and activations (a generous 64 MiB each)."""
+    their networks, optimiser state and activations (a generous 64 MiB each per pair of
+    critics: RLPD's ten count five times)."""
     from baselines.common.stacked import StackedReplay
     from envs import env_spec
 
     env = env_spec(prepared.spec.env_id)
     capacity = min(prepared.config.buffer_size, prepared.spec.total_steps)
     replay = StackedReplay.bytes_per_member(env.obs_dim, env.act_dim, capacity)
-    return members * (replay + 2**26)
+    critic_pairs = max(1, getattr(prepared.config, "num_qs", 2) // 2)
+    return members * (replay + critic_pairs * 2**26)
 
 
 def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,

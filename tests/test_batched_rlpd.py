@@ -87,16 +87,18 @@ def test_batched_rlpd_updates_equal_one_run_updates(utd):
             assert torch.allclose(weight, layer.weight, atol=1e-5)
             assert torch.allclose(bias, layer.bias, atol=1e-5)
         rows = slice(k * config.num_qs, (k + 1) * config.num_qs)
-        for mine, theirs in ((stacked.critics.weights, agent.critics.weights),
-                             (stacked.critics.norm_gains, agent.critics.norm_gains),
-                             (stacked.critics_target.biases, agent.critics_target.biases)):
-            for a, b in zip(mine, theirs):
-                assert torch.allclose(a[rows], b, atol=1e-5)
+        for mine, theirs in ((stacked.critics, agent.critics),
+                             (stacked.critics_target, agent.critics_target)):
+            named = dict(theirs.named_parameters())  # the target's LayerNorm too
+            assert len(named) == len(list(mine.parameters()))
+            for name, value in mine.named_parameters():
+                assert torch.allclose(value[rows], named[name], atol=1e-6), name
         assert torch.allclose(stacked.log_alpha[k], agent.log_alpha[0], atol=1e-6)
 
 
-def _specs(seeds=(0, 1), steps: int = 400):
-    return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, dict(TINY)) for seed in seeds]
+def _specs(seeds=(0, 1), steps: int = 400, **hyper):
+    return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper})
+            for seed in seeds]
 
 
 def test_a_batched_rlpd_run_lands_on_its_one_run_curve(tmp_path):
@@ -144,7 +146,8 @@ def test_an_interrupted_rlpd_batch_resumes_onto_the_uninterrupted_curves(tmp_pat
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-def test_a_batched_rlpd_trains_on_the_gpu_with_graphs(tmp_path):
-    members = [prepare(s) for s in _specs(seeds=(0, 1), steps=600)]
+@pytest.mark.parametrize("utd", [1, 2])  # 2: the critic-only steps' graph too
+def test_a_batched_rlpd_trains_on_the_gpu_with_graphs(tmp_path, utd):
+    members = [prepare(s) for s in _specs(seeds=(0, 1), steps=600, utd=utd)]
     outcome = execute_batch(members, tmp_path, device="cuda")
     assert not outcome.failed and len(outcome.runs) == 2
