@@ -41,12 +41,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import DemoSet, TrainContext
 from baselines.common.device import GraphedStep, make_adam
 from baselines.common.networks import soft_update
+from baselines.common.stacked import layer_norm_mlp
 from baselines.ibrl import preloaded_buffer
 from baselines.registry import register
 from baselines.sac import PolicyExplorer, frozen, run_off_policy
@@ -92,13 +92,8 @@ class LayerNormCriticEnsemble(CriticEnsemble):
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, act], dim=-1).expand(self.n, -1, -1)
-        last = len(self.weights) - 1
-        for k, (weight, bias) in enumerate(zip(self.weights, self.biases)):
-            x = torch.baddbmm(bias, x, weight)
-            if k < last:
-                x = F.layer_norm(x, x.shape[-1:]) * self.norm_gains[k] + self.norm_biases[k]
-                x = torch.relu(x)
-        return x.squeeze(-1)
+        return layer_norm_mlp(x, self.weights, self.biases, self.norm_gains,
+                              self.norm_biases).squeeze(-1)
 
 
 class SymmetricReplay(ReplayBuffer):

@@ -67,13 +67,20 @@ class StackedNormMLP(StackedMLP):
         self.norm_biases = nn.ParameterList(nn.Parameter(b.detach().clone()) for b in norm_biases)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        last = len(self.weights) - 1
-        for k, (weight, bias) in enumerate(zip(self.weights, self.biases)):
-            x = torch.baddbmm(bias, x, weight)
-            if k < last:
-                x = F.layer_norm(x, x.shape[-1:]) * self.norm_gains[k] + self.norm_biases[k]
-                x = torch.relu(x)
-        return x
+        return layer_norm_mlp(x, self.weights, self.biases, self.norm_gains, self.norm_biases)
+
+
+def layer_norm_mlp(x: torch.Tensor, weights: Sequence[torch.Tensor],
+                   biases: Sequence[torch.Tensor], norm_gains: Sequence[torch.Tensor],
+                   norm_biases: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Stacked layers (n, in, out) on x (n, batch, in): Dense -> LayerNorm -> ReLU, the last
+    layer Dense alone (RLPD's critic, one-run ensemble or batch of them alike)."""
+    last = len(weights) - 1
+    for k, (weight, bias) in enumerate(zip(weights, biases)):
+        x = torch.baddbmm(bias, x, weight)
+        if k < last:
+            x = torch.relu(F.layer_norm(x, x.shape[-1:]) * norm_gains[k] + norm_biases[k])
+    return x
 
 
 class StackedPolicy(TanhGaussianPolicy):
