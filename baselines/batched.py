@@ -427,9 +427,6 @@ class StackedRLPDAgent(StackedTwinQAgent):
         batch = self._symmetric_batch(size)
         return self._rlpd_step(batch, self._device_noise(batch), actor=False)
 
-    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
-        return self._rlpd_step(batch, noise, actor=True)
-
     def _rlpd_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
                    actor: bool) -> dict[str, torch.Tensor]:
         cfg = self.config
