@@ -67,8 +67,8 @@ def bench(session: nox.Session) -> None:
     session.install("pytest", "pytest-benchmark")
     env = {"MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
     session.run("python", "benchmarks/bench.py", *session.posargs, env=env)
-    # the seed-batched trainer: CPU section here, GPU section where torch sees a GPU
-    session.run("python", "benchmarks/batched.py", "--cpu", env=env)
+    # the seed-batched trainer: CPU sections (SAC; IBRL and RLPD) here
+    session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", env=env)
     session.run("python", "-c", "import torch, sys; sys.exit(0 if torch.cuda.is_available() "
                 "else 1)", success_codes=[0, 1], env=env)
     # micro-benchmarks, saved so that two commits compare (pytest-benchmark compare)

@@ -1,4 +1,4 @@
-"""Seed-batched training: N runs of SAC, twin-Q SAC, DRL-EG or RLPD in one process.
+"""Seed-batched training: N runs of SAC, twin-Q SAC, DRL-EG, RLPD or IBRL in one process.
 
 The members of a batch share algorithm, env, budget and network shapes and differ in seed
 (DRL-EG members may also differ in T2 and sigma, which change no shape). Each member is a
@@ -10,9 +10,9 @@ members, and no statistic is shared across them. Member k's numbers therefore do
 on which other members share its batch.
 
 On a GPU the gradient step of all N members (replay sampling included) is one CUDA graph
-replay, and so is the policy's action for all N; there the members draw their noise and
-replay indices from one device generator for the batch (GPU curves are not bit-reproducible
-in any case).
+replay, and so is the policy's action for all N (not IBRL's: its imitation actions come from
+the CPU); there the members draw their noise and replay indices from one device generator
+for the batch (GPU curves are not bit-reproducible in any case).
 
 The loop is ``baselines.sac.run_off_policy`` for N envs stepped together
 (``envs.vector.EnvBatch``). A member whose losses turn NaN or inf fails alone: its env stops,
@@ -43,7 +43,7 @@ from baselines.common.stacked import (StackedMLP, StackedNormMLP, StackedPolicy,
 from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
                               fit_neural_guider, functional_discriminator, functional_guider,
                               gmm_discriminator)
-from baselines.ibrl import preloaded_buffer
+from baselines.ibrl import IBRLConfig, ImitationPolicy, preloaded_buffer
 from baselines.registry import register_batched
 from baselines.rlpd import RLPDAgent, RLPDConfig, demo_transitions_or_fail
 from baselines.sac import SACAgent, SACConfig, frozen, q_target, v_target
@@ -301,20 +301,24 @@ class StackedTwinQAgent(StackedActor):
         return (torch.randn(batch.actions.shape, device=self.device),
                 torch.randn(batch.actions.shape, device=self.device))
 
-    def _gradient_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor]
-                       ) -> dict[str, torch.Tensor]:
+    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
+                         alpha: torch.Tensor, **target_inputs: torch.Tensor) -> torch.Tensor:
+        """Each member's soft value of s' (N, B) under its target critics (IBRL overrides)."""
+        next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
+        next_q = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
+        return next_q - alpha * next_log_prob
+
+    def _gradient_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor],
+                       **target_inputs: torch.Tensor) -> dict[str, torch.Tensor]:
         cfg = self.config
         next_noise, new_noise = noise
         obs, actions = batch.observations, batch.actions
         alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
         with torch.no_grad():
-            next_actions, next_log_prob = self.policy.sample(batch.next_observations,
-                                                             noise=next_noise)
-            next_q = critic_pairs(self.critics_target, batch.next_observations,
-                                  next_actions).min(dim=1).values
-            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * (
-                next_q - alpha * next_log_prob)
+            next_value = self.next_state_value(batch.next_observations, next_noise, alpha,
+                                               **target_inputs)
+            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
         q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]
                           ).pow(2).mean(-1).sum(-1)
         self.critic_optimizer.zero_grad()
@@ -474,6 +478,92 @@ class StackedRLPDAgent(StackedTwinQAgent):
                 "entropy": entropy}
 
 
+
+class StackedIBRLAgent(StackedTwinQAgent):
+    """IBRL (``baselines.ibrl``) for N members: twin-Q SAC's stacked networks; each member
+    acts and bootstraps with the higher-valued (by its target critics) of its actor's
+    proposal and its imitation policy's, and its replay starts with the demonstration
+    transitions. The imitation actions come from the CPU (a KD-tree query or a BC net), so
+    no step is a CUDA graph; on CPU member k draws its noise and rows in its one-run order."""
+
+    def __init__(self, agents: list[TwinQSACAgent], config: IBRLConfig,
+                 imitations: list[ImitationPolicy], demos: Any, device: str):
+        super().__init__(agents, config, device, cuda_graphs=False)
+        self.imitations = imitations
+        self.demos = demos  # a DemoSet with transitions to preload, or None
+
+    def imitation_actions(self, states: np.ndarray) -> np.ndarray:
+        """mu_k(s) of member k's states (N, B, obs_dim): (N, B, act_dim) float32."""
+        if self.config.imitation == "functional":  # one tree answers every member
+            flat = self.imitations[0](states.reshape(-1, states.shape[-1]))
+            return flat.reshape(*states.shape[:2], -1).astype(np.float32)
+        return np.stack([mu(rows) for mu, rows in zip(self.imitations, states)])
+
+    @torch.no_grad()
+    def propose(self, obs: np.ndarray, deterministic: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Each member's executed action and whether its imitation policy proposed it; the
+        actor's proposal is sampled unless ``deterministic``, and ties go to the actor."""
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)
+                                 ).to(self.device)[:, None, :]
+        if deterministic:
+            rl_action = self.policy.deterministic(obs_t)
+        else:
+            noise = (self._member_noise(1) if self.device.type == "cpu" else
+                     torch.randn((self.members, 1, self.act_dim), device=self.device))
+            rl_action, _ = self.policy.sample(obs_t, noise=noise.to(self.device))
+        il_action = torch.from_numpy(self.imitation_actions(obs[:, None, :])).to(self.device)
+        pair = torch.cat([rl_action, il_action], dim=1)  # (N, 2, act_dim)
+        q = critic_pairs(self.critics_target, obs_t.expand(-1, 2, -1), pair
+                         ).min(dim=1).values  # (N, 2): min over each member's two critics
+        imitated = q[:, 1] > q[:, 0]
+        action = torch.where(imitated[:, None], pair[:, 1], pair[:, 0])
+        return action.cpu().numpy(), imitated.cpu().numpy()
+
+    def act(self, obs: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+        return self.propose(obs, deterministic=False)[0]
+
+    def act_deterministic(self, obs: np.ndarray) -> np.ndarray:
+        if not self.config.eval_with_imitation:
+            return super().act_deterministic(obs)
+        return self.propose(obs, deterministic=True)[0]
+
+    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
+        """Each member's replay, the demonstration transitions first (``preloaded_buffer``)."""
+        if self.demos is None:
+            return super().make_replay(members, obs_dim, capacity)
+        n = len(self.demos.observations)
+        replay = StackedReplay(members, obs_dim, self.act_dim, n + capacity, self.device)
+        def tile(x: Any) -> np.ndarray:  # one transition, the same for every member
+            return np.repeat(np.asarray(x, dtype=np.float32)[None], members, axis=0)
+
+        for i in range(n):
+            replay.add(tile(self.demos.observations[i]), tile(self.demos.actions[i]),
+                       tile(self.demos.rewards[i]), tile(self.demos.next_observations[i]),
+                       tile(float(bool(self.demos.terminated[i]))))
+        return replay
+
+    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
+        if self.device.type == "cpu":
+            batch = self.buffer.sample(self.batch_size, rngs)
+            noise = self._cpu_noise()
+        else:
+            uniform = torch.rand((self.members, self.batch_size), device=self.device)
+            size = self.buffer.size
+            batch = self.buffer.gather((uniform * size).long().clamp_(max=size - 1))
+            noise = self._device_noise(batch)
+        # mu(s') off the gradient step, as the one-run IBRL computes it
+        next_il = self.imitation_actions(batch.next_observations.cpu().numpy())
+        return self._gradient_step(batch, noise,
+                                   next_il_actions=torch.from_numpy(next_il).to(self.device))
+
+    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
+                         alpha: torch.Tensor, next_il_actions: torch.Tensor) -> torch.Tensor:
+        """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s') per member, a' ~ pi(.|s')."""
+        next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
+        q_rl = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
+        q_il = critic_pairs(self.critics_target, next_obs, next_il_actions).min(dim=1).values
+        return torch.maximum(q_rl, q_il) - alpha * next_log_prob
+
 def agent_state(agent: StackedActor) -> dict[str, Any]:
     state = {name: copy.deepcopy(getattr(agent, name).state_dict()) for name in agent.MODULES}
     if isinstance(agent, StackedTwinQAgent):
@@ -589,6 +679,13 @@ class StackedGuidedExplorer(StackedExplorer):
         self.policy_returns = state["policy_returns"].copy()
         self.rngs = state["guider_rngs"]
 
+
+
+class StackedIBRLExplorer(StackedExplorer):
+    """IBRL's choice for N members; a step counts as guided where the imitation action won."""
+
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.agent.propose(obs, deterministic=False)
 
 def evaluate_members(envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int,
                      members: np.ndarray) -> list[list[float]]:
@@ -819,6 +916,27 @@ def train_rlpd(bctx: BatchContext, configs: list[RLPDConfig]) -> None:
     run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
 
 
+
+@register_batched("ibrl")
+def train_ibrl(bctx: BatchContext, configs: list[IBRLConfig]) -> None:
+    demos = bctx.members[0].demos
+    if demos is None:
+        raise ValueError("IBRL needs demonstrations")
+    _, _, low, high = _space(bctx.shared("env_id"))
+    config = configs[0]  # a batch's IBRL settings are alike (only seed, T2 and sigma differ)
+    if config.imitation == "functional":  # deterministic and seed-free: one serves all
+        imitations = [ImitationPolicy(config, demos, low, high, bctx.seeds[0])]
+    else:
+        imitations = [ImitationPolicy(config, demos, low, high, seed) for seed in bctx.seeds]
+    preload = config.preload_demos and getattr(demos, "rewards", None) is not None
+    agents = _one_run_agents(bctx, configs, TwinQSACAgent)  # IBRLAgent's weights and streams
+    if bctx.device != "cpu":  # after the agents, as for the other batches
+        torch.cuda.manual_seed(bctx.seeds[0] + 1)
+    agent = StackedIBRLAgent(agents, config, imitations, demos if preload else None,
+                             bctx.device)
+    run_stacked_off_policy(bctx, agent, StackedIBRLExplorer(agent))
+
 __all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent", "StackedRLPDAgent",
+           "StackedIBRLAgent",
            "StackedExplorer", "StackedGuidedExplorer", "stacked_explorer",
            "evaluate_members", "run_stacked_off_policy", "stacked_agent"]

@@ -4,6 +4,9 @@ CPU section (``--cpu``): on this machine's cores, N = 1, 2, 4, 8 members of V-SA
 in one process per core against one run per process, env steps per second summed over the
 machine; and one V-SAC update in fp32 against bf16 autocast.
 
+RLFD CPU section (``--rlfd-cpu``): IBRL and RLPD on the sparse cartpole, a batch of 5 seeds
+in one process against one run, on one thread each.
+
 GPU section (``--gpu``): N = 8, 16, 32, 64 members of V-SAC and DRL-EG on Hopper-v5 and
 Ant-v5 (paper hyperparameters, batch 256 per member, one gradient step per env step), env
 steps per second summed over the members, the GPU memory, where a batched step's time goes,
@@ -16,6 +19,7 @@ measurement so that a cut-off run keeps what it finished.
 
     python benchmarks/batched.py --cpu
     python benchmarks/batched.py --update-precision --out reports/bench/bf16_products.json
+    python benchmarks/batched.py --rlfd-cpu --out reports/bench/batched_rlfd_cpu.json
     python benchmarks/batched.py --gpu --out reports/bench/batched_gpu.json
 """
 
@@ -40,7 +44,7 @@ from baselines.batched import (BatchContext, run_stacked_off_policy, stacked_age
                                stacked_explorer)
 from baselines.common.context import TrainContext  # noqa: E402
 from baselines.common.stacked import StackedReplay  # noqa: E402
-from baselines.registry import get_algorithm  # noqa: E402
+from baselines.registry import batched_trainer, get_algorithm  # noqa: E402
 from envs import env_spec  # noqa: E402
 
 WARMUP = 1000  # env steps before the first update, as in the harness's SAC
@@ -241,6 +245,36 @@ def update_precision(calls: int = 50) -> dict[str, float]:
     return out
 
 
+def registered_batch_rate(algo: str, env_id: str, members: int, steps: int) -> float:
+    """``members`` seeds of ``algo`` through its registered batched trainer on one CPU
+    thread: summed env steps/s over the timed steps."""
+    torch.set_num_threads(1)
+    algorithm = get_algorithm(algo)
+    configs = [algorithm.make_config({}) for _ in range(members)]
+    demos = demos_of(env_id) if algorithm.needs_demos else None
+    total = WARMUP + steps
+    contexts = [TrainContext(env_id=env_id, seed=seed, total_steps=total, eval_interval=HUGE,
+                             eval_episodes=1, demos=demos) for seed in range(members)]
+    clock = StepClock(members, WARMUP, total)
+    batched_trainer(algo)(BatchContext(contexts, on_steps=clock), configs)
+    return clock.rate()
+
+
+RLFD_CPU_ENV = "dm_control/cartpole-swingup_sparse-v0"
+
+
+def rlfd_cpu_section(steps: int, write) -> None:
+    """IBRL and RLPD (the comparison's costliest learners) on one thread: a batch of 5, the
+    comparison's seeds, against one run, env steps/s summed over the members."""
+    for algo in ("ibrl", "rlpd"):
+        torch.set_num_threads(1)
+        one = one_run_rate(algo, RLFD_CPU_ENV, steps, "cpu")["env_steps_per_s"]
+        write("rlfd cpu", {f"{algo} one run": round(one, 1)})
+        rate = registered_batch_rate(algo, RLFD_CPU_ENV, 5, steps)
+        write("rlfd cpu", {f"{algo} batched N=5": round(rate, 1),
+                           f"{algo} batched N=5 / one run": round(rate / one, 3)})
+
+
 def _cpu_process(job: tuple[int, int]) -> float:
     members, steps = job
     torch.set_num_threads(1)
@@ -321,6 +355,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cpu", action="store_true", help="the CPU section")
     parser.add_argument("--gpu", action="store_true", help="the GPU section")
+    parser.add_argument("--rlfd-cpu", action="store_true",
+                        help="IBRL and RLPD, batch of 5 against one run, on one CPU thread")
     parser.add_argument("--update-precision", action="store_true",
                         help="only the CPU section's update timings (fp32, bf16 autocast, "
                              "bf16 products)")
@@ -343,6 +379,8 @@ def main() -> None:
 
     if args.gpu:
         gpu_section(args.steps, write, args.env_workers)
+    if args.rlfd_cpu:
+        rlfd_cpu_section(args.steps, write)
     if args.cpu:
         cpu_section(args.steps, write)
     elif args.update_precision:

@@ -72,8 +72,8 @@ def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) ->
                                  "(default: every worker on the GPU)")
         parser.add_argument("--batch", type=int, default=None, metavar="N",
                             help="train up to N runs that differ only in seed together in "
-                                 "one process (SAC, twin-Q SAC, DRL-EG, RLPD; the others train "
-                                 "one per process). Default: on a GPU as many as fit its "
+                                 "one process (SAC, twin-Q SAC, DRL-EG, RLPD, IBRL; the others "
+                                 "train one per process). Default: on a GPU as many as fit its "
                                  "memory (up to 64), on CPU none")
 
 

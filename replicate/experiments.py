@@ -325,7 +325,7 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
     if batch is not None and batch > 1 and missing and not batchable:
         names = sorted({p.spec.algo for p in missing})
         raise HarnessError(f"--batch {batch}: no batched trainer for {', '.join(names)}",
-                           "drop --batch (or batch sac, sac-twin-q, drl-eg and rlpd runs)")
+                           "drop --batch (or batch sac, sac-twin-q, drl-eg, rlpd and ibrl runs)")
     on_gpu = resolve_device(device, has_gpu_path=True) == "cuda"
     if not on_gpu or not batchable:
         return batch

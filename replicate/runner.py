@@ -381,8 +381,8 @@ def execute_batch(members: list[PreparedRun], store: Path,
     if len({batch_key(p) for p in members}) != 1 or trainer is None:
         raise HarnessError("the runs of a batch must differ only in seed, T2 and sigma, and "
                            f"their algorithm must have a batched trainer ({members[0].spec.algo})",
-                           "batch only sac, sac-twin-q, drl-eg and rlpd runs of one env and "
-                           "budget")
+                           "batch only sac, sac-twin-q, drl-eg, rlpd and ibrl runs of one env "
+                           "and budget")
     store.mkdir(parents=True, exist_ok=True)
     ident = batch_id(members)
     batch_dir = store / f".{ident}"
