@@ -923,7 +923,7 @@ def train_ibrl(bctx: BatchContext, configs: list[IBRLConfig]) -> None:
     if demos is None:
         raise ValueError("IBRL needs demonstrations")
     _, _, low, high = _space(bctx.shared("env_id"))
-    config = configs[0]  # a batch's IBRL settings are alike (only seed, T2 and sigma differ)
+    config = configs[0]  # a batch's members differ only in their seed
     if config.imitation == "functional":  # deterministic and seed-free: one serves all
         imitations = [ImitationPolicy(config, demos, low, high, bctx.seeds[0])]
     else:

@@ -264,8 +264,9 @@ RLFD_CPU_ENV = "dm_control/cartpole-swingup_sparse-v0"
 
 
 def rlfd_cpu_section(steps: int, write) -> None:
-    """IBRL and RLPD (the comparison's costliest learners) on one thread: a batch of 5, the
-    comparison's seeds, against one run, env steps/s summed over the members."""
+    """IBRL and RLPD (the comparison's learners with a batched trainer beside SAC and
+    DRL-EG) on one thread: a batch of 5, the comparison's seeds, against one run, env steps/s
+    summed over the members."""
     for algo in ("ibrl", "rlpd"):
         torch.set_num_threads(1)
         one = one_run_rate(algo, RLFD_CPU_ENV, steps, "cpu")["env_steps_per_s"]

@@ -5,7 +5,8 @@
 # H200 alone (reports/bench/batched_gpu.json), and no checkpoint can come back.
 # What does, side by side until SECONDS (every grid trains only what the store lacks):
 #  - on the GPU, the comparison's sparse dm-control tasks at the reduced budget (50k steps):
-#    SAC and DRL-EG as seed batches of 5, two at a time; IBRL and JSRL one run per process;
+#    SAC and DRL-EG as seed batches of 5, two at a time; IBRL and JSRL one run per process
+#    (--batch 1: IBRL's batched trainer had not met a GPU when it was added);
 #  - on the spare cores, the same tasks' DDPGfD and Fig. 3's rule-free PPO and PPO+BC cells.
 # Measured in its first sitting (H100, 480 s, 2026-11-26; quick's RLPD and JSRL in place of
 # IBRL, JSRL and DDPGfD): a cartpole-swingup_sparse batch of 5 ran 133 batch steps/s (50k in
@@ -27,8 +28,8 @@ if [ "$1" = --jobs ]; then  # the sitting's command: every job at once, stopped 
             --batch 5 --workers 2 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
             $dry > "$out/rlfd-sparse-batched.log" 2>&1 &
         "$python" -m replicate compare-rlfd --profile reduced --envs $sparse --algos ibrl jsrl \
-            --workers 4 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
-            > "$out/rlfd-sparse-one-run.log" 2>&1 &
+            --batch 1 --workers 4 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
+            $dry > "$out/rlfd-sparse-one-run.log" 2>&1 &
         "$python" -m replicate compare-rlfd --profile reduced --envs $sparse --algos ddpgfd \
             --workers 4 --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" $dry \
             > "$out/rlfd-sparse-ddpgfd.log" 2>&1 &

@@ -9,6 +9,7 @@ import torch
 from baselines.batched import BatchContext, StackedIBRLAgent, StackedTwinQAgent
 from baselines.common.buffer import ReplayBuffer
 from baselines.common.context import TrainContext
+from baselines.common.stacked import critic_pairs
 from baselines.ibrl import IBRLAgent, IBRLConfig, ImitationPolicy, preloaded_buffer
 from baselines.registry import batched_trainer
 from baselines.sac_twin_q import TwinQSACAgent
@@ -66,15 +67,31 @@ def test_each_members_replay_starts_with_the_demonstrations():
     for k in range(len(SEEDS)):
         np.testing.assert_array_equal(stored.observations[k].numpy(),
                                       np.asarray(demos.observations, dtype=np.float32))
-        np.testing.assert_array_equal(stored.actions[k].numpy(),
-                                      np.asarray(demos.actions, dtype=np.float32))
+        for name in ("actions", "rewards", "next_observations", "terminated"):
+            np.testing.assert_array_equal(getattr(stored, name)[k].numpy(),
+                                          np.asarray(getattr(demos, name), dtype=np.float32))
+
+
+def _train_both(stacked: StackedIBRLAgent, singles: list, buffers: list, updates: int
+                ) -> None:
+    """The same updates in the batch and in each one-run agent (so that the online and
+    target critics differ, as they do in training)."""
+    stacked_rngs = [np.random.default_rng(s) for s in SEEDS]
+    one_rngs = [np.random.default_rng(s) for s in SEEDS]
+    for _ in range(updates):
+        stacked.update(stacked_rngs)
+        for k, agent in enumerate(singles):
+            agent.update(buffers[k].sample(ROWS, one_rngs[k]))
 
 
 @pytest.mark.parametrize("imitation", ["functional", "bc"])
 def test_batched_ibrl_proposals_equal_one_run_proposals(imitation):
-    """Sampled and deterministic: the same executed actions, and the imitation policy wins
-    where it wins in the one-run agent (drawn from each member's one-run noise stream)."""
-    _, _, stacked, singles = _pair(imitation)
+    """After a few updates, sampled and deterministic: the same executed actions, and the
+    imitation policy wins where it wins in the one-run agent (whose choice is by its target
+    critics), the actor's noise drawn from each member's one-run stream."""
+    demos, _, stacked, singles = _pair(imitation)
+    _train_both(stacked, singles, _fill(stacked, demos), updates=20)
+    assert not torch.allclose(stacked.critics.weights[-1], stacked.critics_target.weights[-1])
     rng = np.random.default_rng(5)
     imitated_any = []
     for deterministic in (False, True, False):
@@ -88,6 +105,17 @@ def test_batched_ibrl_proposals_equal_one_run_proposals(imitation):
                 assert bool(imitated[k]) == one_imitated
                 imitated_any.append(one_imitated)
     assert any(imitated_any) and not all(imitated_any)  # both proposals win somewhere
+
+
+def test_a_tie_between_the_proposals_goes_to_the_actor():
+    """An imitation policy that proposes the actor's own deterministic action never counts
+    as the winner (IBRL takes the imitation action only when its value is higher)."""
+    _, _, stacked, _ = _pair("functional")
+    stacked.imitation_actions = lambda states: stacked.policy.deterministic(
+        torch.from_numpy(states.astype(np.float32))).numpy()
+    obs = np.random.default_rng(2).uniform([-1.2, -0.07], [0.6, 0.07], size=(len(SEEDS), OBS))
+    _, imitated = stacked.propose(obs.astype(np.float32), deterministic=True)
+    assert not imitated.any()
 
 
 @pytest.mark.parametrize("imitation", ["functional", "bc"])
@@ -119,20 +147,24 @@ def test_batched_ibrl_updates_equal_one_run_updates(imitation):
         assert torch.allclose(stacked.log_alpha[k], agent.log_alpha[0], atol=1e-6)
 
 
-def test_bootstrapping_from_the_imitation_action_raises_the_target():
-    """The defining term: with mu(s') worth more than the actor's a' to the target critics,
-    the next-state value is the imitation action's; never below the actor's."""
+def test_the_target_bootstraps_from_the_higher_valued_proposal():
+    """The defining term, per member: the next-state value is the larger of the actor's
+    soft value and Q'(s', mu(s')) by that member's own target critics (alpha 0 here), and
+    each of the two wins somewhere."""
     _, _, stacked, _ = _pair("functional")
-    next_obs = torch.zeros((len(SEEDS), 4, OBS))
-    noise = torch.zeros((len(SEEDS), 4, ACT))
+    with torch.no_grad():  # members' target critics apart from their online ones
+        for weight in stacked.critics_target.weights:
+            weight.add_(0.3 * torch.randn_like(weight))
+    rng = torch.Generator().manual_seed(0)
+    next_obs = torch.randn((len(SEEDS), 16, OBS), generator=rng)
+    noise = torch.randn((len(SEEDS), 16, ACT), generator=rng)
+    il_actions = torch.rand((len(SEEDS), 16, ACT), generator=rng) * 2 - 1
     alpha = torch.zeros((len(SEEDS), 1))
     actor_value = StackedTwinQAgent.next_state_value(stacked, next_obs, noise, alpha)
-    candidates = torch.linspace(-1, 1, 21)
-    values = [stacked.next_state_value(next_obs, noise, alpha,
-                                       next_il_actions=torch.full((len(SEEDS), 4, ACT), float(a)))
-              for a in candidates]
-    assert all(bool((v >= actor_value - 1e-6).all()) for v in values)
-    assert any(bool((v > actor_value + 1e-6).any()) for v in values)
+    il_value = critic_pairs(stacked.critics_target, next_obs, il_actions).min(dim=1).values
+    value = stacked.next_state_value(next_obs, noise, alpha, next_il_actions=il_actions)
+    torch.testing.assert_close(value, torch.maximum(actor_value, il_value))
+    assert bool((il_value > actor_value).any()) and bool((il_value < actor_value).any())
 
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
