@@ -35,3 +35,34 @@ def curve_signature(points: list[EvalPoint]) -> list[tuple]:
         return None if isinstance(value, float) and math.isnan(value) else value
     return [(p.step, tuple(p.returns), plain(p.guided_fraction), plain(p.train_return))
             for p in points]
+
+
+class _Interrupted(Exception):
+    pass
+
+
+def batch_curves(algo: str, config, path, stop_at: int | None = None, seeds=(0, 1),
+                 steps: int = 400) -> dict[int, list[EvalPoint]]:
+    """Train ``seeds`` of ``algo`` on MountainCar as one seed batch checkpointing into
+    ``path`` every 100 steps; with ``stop_at``, stop as if killed at that call of the
+    progress callback. Each member's evaluation points, by seed."""
+    from baselines.batched import BatchContext
+    from baselines.registry import batched_trainer
+
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    points: dict[int, list[EvalPoint]] = {s: [] for s in seeds}
+    seen = [0]
+
+    def on_steps(n: int) -> None:
+        seen[0] += 1
+        if stop_at is not None and seen[0] == stop_at:
+            raise _Interrupted
+    contexts = [TrainContext(MOUNTAINCAR, s, steps, 200, 1, demos=demos,
+                             on_eval=points[s].append) for s in seeds]
+    bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
+                        checkpoint_path=path)
+    try:
+        batched_trainer(algo)(bctx, [config] * len(seeds))
+    except _Interrupted:
+        pass
+    return points

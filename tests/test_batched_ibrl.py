@@ -6,17 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.batched import BatchContext, StackedIBRLAgent, StackedTwinQAgent
+from baselines.batched import StackedIBRLAgent, StackedTwinQAgent
 from baselines.common.buffer import ReplayBuffer
-from baselines.common.context import TrainContext
 from baselines.common.stacked import critic_pairs
 from baselines.ibrl import IBRLAgent, IBRLConfig, ImitationPolicy, preloaded_buffer
-from baselines.registry import batched_trainer
 from baselines.sac_twin_q import TwinQSACAgent
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, curve_signature
+from tests.helpers import MOUNTAINCAR, TINY, batch_curves, curve_signature
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT, dtype=np.float32), np.ones(ACT, dtype=np.float32)
@@ -187,32 +185,9 @@ def test_a_batched_ibrl_run_lands_on_its_one_run_curve(tmp_path):
 
 def test_an_interrupted_ibrl_batch_resumes_onto_the_uninterrupted_curves(tmp_path):
     config = IBRLConfig(**TINY)
-    demos = _demos()
-
-    class Interrupted(Exception):
-        pass
-
-    def run(path, stop_at: int | None) -> dict[int, list]:
-        points: dict[int, list] = {0: [], 1: []}
-        seen = [0]
-
-        def on_steps(n: int) -> None:
-            seen[0] += 1
-            if stop_at is not None and seen[0] == stop_at:
-                raise Interrupted
-        contexts = [TrainContext(MOUNTAINCAR, s, 400, 200, 1, demos=demos,
-                                 on_eval=points[s].append) for s in (0, 1)]
-        bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
-                            checkpoint_path=path)
-        try:
-            batched_trainer("ibrl")(bctx, [config, config])
-        except Interrupted:
-            pass
-        return points
-
-    whole = run(tmp_path / "whole.pt", None)
-    run(tmp_path / "cut.pt", stop_at=250)
-    resumed = run(tmp_path / "cut.pt", None)
+    whole = batch_curves("ibrl", config, tmp_path / "whole.pt")
+    batch_curves("ibrl", config, tmp_path / "cut.pt", stop_at=250)
+    resumed = batch_curves("ibrl", config, tmp_path / "cut.pt")
     for k in (0, 1):
         assert curve_signature(resumed[k]) == curve_signature(whole[k])
 

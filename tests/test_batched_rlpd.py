@@ -6,16 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.batched import BatchContext, StackedRLPDAgent
-from baselines.common.context import TrainContext
+from baselines.batched import StackedRLPDAgent
 from baselines.common.stacked import StackedSymmetricReplay
 from baselines.ibrl import preloaded_buffer
-from baselines.registry import batched_trainer
 from baselines.rlpd import RLPDAgent, RLPDConfig, SymmetricReplay
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY
+from tests.helpers import MOUNTAINCAR, TINY, batch_curves
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT), np.ones(ACT)
@@ -114,32 +112,9 @@ def test_a_batched_rlpd_run_lands_on_its_one_run_curve(tmp_path):
 
 def test_an_interrupted_rlpd_batch_resumes_onto_the_uninterrupted_curves(tmp_path):
     config = RLPDConfig(**TINY)
-    demos = _demos()
-
-    class Interrupted(Exception):
-        pass
-
-    def run(path, stop_at: int | None) -> dict[int, list]:
-        points: dict[int, list] = {0: [], 1: []}
-        seen = [0]
-
-        def on_steps(n: int) -> None:
-            seen[0] += 1
-            if stop_at is not None and seen[0] == stop_at:
-                raise Interrupted
-        contexts = [TrainContext(MOUNTAINCAR, s, 400, 200, 1, demos=demos,
-                                 on_eval=points[s].append) for s in (0, 1)]
-        bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
-                            checkpoint_path=path)
-        try:
-            batched_trainer("rlpd")(bctx, [config, config])
-        except Interrupted:
-            pass
-        return points
-
-    whole = run(tmp_path / "whole.pt", None)
-    run(tmp_path / "cut.pt", stop_at=250)
-    resumed = run(tmp_path / "cut.pt", None)
+    whole = batch_curves("rlpd", config, tmp_path / "whole.pt")
+    batch_curves("rlpd", config, tmp_path / "cut.pt", stop_at=250)
+    resumed = batch_curves("rlpd", config, tmp_path / "cut.pt")
     for k in (0, 1):
         assert [(p.step, p.returns) for p in resumed[k]] == \
             [(p.step, p.returns) for p in whole[k]]
