@@ -17,7 +17,10 @@ from typing import Any
 import numpy as np
 
 from replicate.stats import (CONFIDENCE, bootstrap_mean, bootstrap_mean_difference,
-                             curve_area, paired_difference, welch_test)
+                             curve_area, paired_difference, substream, welch_test)
+
+# A check's bootstrap stream, named by its label: no check's interval depends on another's.
+Streams = Callable[[str], np.random.Generator]
 
 MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = ("MountainCarContinuous-v0", "Hopper-v5",
                                              "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
@@ -80,25 +83,24 @@ def _check(what: str, low: float, high: float, estimate: float, inside: tuple[fl
             "seeds_meeting": seeds_meeting, "n": n}
 
 
-def _mean_check(what: str, group: Group, inside: tuple[float, float],
-                rng: np.random.Generator, meets: Callable[[np.ndarray], np.ndarray]
-                ) -> dict[str, Any]:
-    est = bootstrap_mean(group.finals, rng)
+def _mean_check(what: str, group: Group, inside: tuple[float, float], streams: Streams,
+                meets: Callable[[np.ndarray], np.ndarray]) -> dict[str, Any]:
+    est = bootstrap_mean(group.finals, streams(what))
     return _check(what, est.low[0], est.high[0], est.value[0], inside,
                   int(meets(group.finals).sum()), len(group.finals))
 
 
 def _difference_check(what: str, a: np.ndarray, b: np.ndarray, inside: tuple[float, float],
-                      rng: np.random.Generator) -> dict[str, Any]:
-    diff = bootstrap_mean_difference(a, b, rng)
+                      streams: Streams) -> dict[str, Any]:
+    diff = bootstrap_mean_difference(a, b, streams(what))
     return _check(what, diff.low, diff.high, diff.value, inside)
 
 
-def _effect(a: Group, b: Group, rng: np.random.Generator) -> dict[str, Any]:
-    diff = bootstrap_mean_difference(a.finals, b.finals, rng)
+def _effect(a: Group, b: Group, streams: Streams) -> dict[str, Any]:
+    name = f"{LABELS[a.algo]} minus {LABELS[b.algo]} on {a.env_id}, mean final return"
+    diff = bootstrap_mean_difference(a.finals, b.finals, streams(name))
     t_stat, p_value = welch_test(a.finals, b.finals)
-    return {"name": f"{LABELS[a.algo]} minus {LABELS[b.algo]} on {a.env_id}, mean final "
-                    "return", "value": float(diff.value), "low": float(diff.low),
+    return {"name": name, "value": float(diff.value), "low": float(diff.low),
             "high": float(diff.high),
             "test": f"percentile bootstrap ({CONFIDENCE:.0%}); Welch t = {t_stat:.2f}, "
                     f"p = {p_value:.3g}"}
@@ -121,7 +123,7 @@ def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) ->
 
 
 def claim_1(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
-            rng: np.random.Generator) -> dict[str, Any]:
+            streams: Streams) -> dict[str, Any]:
     """MountainCar: SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn
     but end below DRL-EG. Checks on algorithms without runs are left out, DRL-EG's is needed."""
     title = "MountainCarContinuous: only the demonstration-guided methods leave 0, and DRL-EG ends on top"
@@ -132,29 +134,29 @@ def claim_1(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]
     drl = groups[(MOUNTAINCAR, "drl-eg")]
     used = [drl]
     parts = [_mean_check(f"DRL-EG final return above {MOUNTAINTOP:g}", drl, (MOUNTAINTOP, np.inf),
-                         rng, lambda f: f > MOUNTAINTOP)]
+                         streams, lambda f: f > MOUNTAINTOP)]
     for algo in ("sac", "ppo"):
         if (MOUNTAINCAR, algo) in groups:
             g = groups[(MOUNTAINCAR, algo)]
             used.append(g)
             parts.append(_mean_check(f"{LABELS[algo]} final return within +-{NEAR_ZERO:g}", g,
-                                     (-NEAR_ZERO, NEAR_ZERO), rng,
+                                     (-NEAR_ZERO, NEAR_ZERO), streams,
                                      lambda f: np.abs(f) <= NEAR_ZERO))
     for algo in ("ppo-bc", "ddpgfd"):
         if (MOUNTAINCAR, algo) in groups:
             g = groups[(MOUNTAINCAR, algo)]
             used.append(g)
             parts.append(_mean_check(f"{LABELS[algo]} learns: final return above {NEAR_ZERO:g}",
-                                     g, (NEAR_ZERO, np.inf), rng, lambda f: f > NEAR_ZERO))
+                                     g, (NEAR_ZERO, np.inf), streams, lambda f: f > NEAR_ZERO))
             parts.append(_difference_check(f"{LABELS[algo]} ends below DRL-EG: DRL-EG minus "
                                            f"{LABELS[algo]} above 0", drl.finals, g.finals,
-                                           (0.0, np.inf), rng))
-    effect = _effect(drl, groups[(MOUNTAINCAR, "sac")], rng) if (MOUNTAINCAR, "sac") in groups \
-        else None
+                                           (0.0, np.inf), streams))
+    effect = (_effect(drl, groups[(MOUNTAINCAR, "sac")], streams)
+              if (MOUNTAINCAR, "sac") in groups else None)
     return _claim(1, title, paper, parts, used, effect)
 
 
-def claim_2(groups, demo_returns, rng) -> dict[str, Any]:
+def claim_2(groups, demo_returns, streams) -> dict[str, Any]:
     """Hopper and HalfCheetah: DRL-EG and SAC are indistinguishable (equivalence within a
     margin of 10% of SAC's mean final return)."""
     title = "Hopper and HalfCheetah: DRL-EG and SAC are indistinguishable"
@@ -169,17 +171,17 @@ def claim_2(groups, demo_returns, rng) -> dict[str, Any]:
         margin = EQUIVALENCE_MARGIN * abs(float(np.mean(sac.finals)))
         parts.append(_difference_check(
             f"{env_id}: DRL-EG minus SAC within +-{EQUIVALENCE_MARGIN:.0%} of SAC's return "
-            f"(+-{margin:.0f})", drl.finals, sac.finals, (-margin, margin), rng))
+            f"(+-{margin:.0f})", drl.finals, sac.finals, (-margin, margin), streams))
         area_margin = EQUIVALENCE_MARGIN * abs(float(np.mean(sac.areas)))
         parts.append(_difference_check(
             f"{env_id}: sample efficiency, area under the curve of DRL-EG minus SAC's within "
             f"+-{EQUIVALENCE_MARGIN:.0%} of SAC's (+-{area_margin:.0f})", drl.areas, sac.areas,
-            (-area_margin, area_margin), rng))
+            (-area_margin, area_margin), streams))
     return _claim(2, title, paper, parts, used, _effect(groups[(HOPPER, "drl-eg")],
-                                                        groups[(HOPPER, "sac")], rng))
+                                                        groups[(HOPPER, "sac")], streams))
 
 
-def claim_3(groups, demo_returns, rng) -> dict[str, Any]:
+def claim_3(groups, demo_returns, streams) -> dict[str, Any]:
     """Walker2d and Ant: DRL-EG beats every other algorithm that has runs, and its final
     return reaches 90% of the demonstrations' return."""
     title = "Walker2d and Ant: DRL-EG beats every other algorithm and ends near the demonstrations"
@@ -196,20 +198,22 @@ def claim_3(groups, demo_returns, rng) -> dict[str, Any]:
             if (env_id, algo) in groups:
                 other = groups[(env_id, algo)]
                 used.append(other)
-                parts.append(_difference_check(f"{env_id}: DRL-EG minus {LABELS[algo]} above 0",
-                                               drl.finals, other.finals, (0.0, np.inf), rng))
+                parts.append(_difference_check(
+                    f"{env_id}: DRL-EG minus {LABELS[algo]} above 0", drl.finals, other.finals,
+                    (0.0, np.inf), streams))
                 parts.append(_difference_check(
                     f"{env_id}: sample efficiency, area under the curve of DRL-EG minus "
-                    f"{LABELS[algo]}'s above 0", drl.areas, other.areas, (0.0, np.inf), rng))
+                    f"{LABELS[algo]}'s above 0", drl.areas, other.areas, (0.0, np.inf),
+                    streams))
         level = NEAR_DEMOS * demo_returns[env_id]
         parts.append(_mean_check(f"{env_id}: DRL-EG final return at least {NEAR_DEMOS:.0%} of "
                                  f"the demonstrations' {demo_returns[env_id]:.0f}", drl,
-                                 (level, np.inf), rng, lambda f, level=level: f >= level))
+                                 (level, np.inf), streams, lambda f, level=level: f >= level))
     return _claim(3, title, paper, parts, used, _effect(groups[(ANT, "drl-eg")],
-                                                        groups[(ANT, "sac")], rng))
+                                                        groups[(ANT, "sac")], streams))
 
 
-def claim_4(groups, demo_returns, rng) -> dict[str, Any]:
+def claim_4(groups, demo_returns, streams) -> dict[str, Any]:
     """Ant: SAC and DDPGfD train unstably, DRL-EG more stably. Instability of a run: the sum
     of its curve's drops over its range; checked as a difference of means over seeds."""
     title = "Ant: SAC and DDPGfD train unstably; DRL-EG is more stable"
@@ -226,11 +230,11 @@ def claim_4(groups, demo_returns, rng) -> dict[str, Any]:
         other_instability = np.array([instability(c) for c in other.curves])
         parts.append(_difference_check(f"Ant: instability of {LABELS[algo]} minus DRL-EG's "
                                        "above 0", other_instability, drl_instability,
-                                       (0.0, np.inf), rng))
+                                       (0.0, np.inf), streams))
     return _claim(4, title, paper, parts, used)
 
 
-def claim_5(groups, demo_returns, rng) -> dict[str, Any]:
+def claim_5(groups, demo_returns, streams) -> dict[str, Any]:
     """Fig. 4: on Ant, with the same seeds and initial weights, DRL-EG ends above SAC (paired
     difference over seeds) and escapes where SAC stays stuck on at least one seed."""
     title = "Fig. 4, Ant with paired seeds: DRL-EG escapes a local optimum where SAC stays"
@@ -244,7 +248,7 @@ def claim_5(groups, demo_returns, rng) -> dict[str, Any]:
         return _claim(5, title, paper, [], [], missing=["SAC and DRL-EG runs on shared seeds"])
     a = np.array([drl.finals[drl.seeds.index(s)] for s in common])
     b = np.array([sac.finals[sac.seeds.index(s)] for s in common])
-    estimate, p_value = paired_difference(a, b, rng)
+    estimate, p_value = paired_difference(a, b, streams("Ant: paired DRL-EG minus SAC"))
     part = _check(f"Ant, {len(common)} paired seeds: DRL-EG minus SAC above 0 "
                   f"(Wilcoxon signed-rank p = {p_value:.3g})", estimate.low, estimate.high,
                   estimate.value, (0.0, np.inf), int((a > b).sum()), len(common))
@@ -285,13 +289,19 @@ def budget_note(claim_id: int, groups: dict[tuple[str, str], Group]) -> str | No
     return BUDGET_NOTES[claim_id].format(steps=max(budgets))
 
 
+def claim_streams(seed: int, number: int) -> Streams:
+    """Claim ``number``'s bootstrap streams, one per check, named by the check's label."""
+    return lambda label: substream(seed, f"claim {number}", label)
+
+
 def judge_claims(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
                  seed: int, meaningful: bool) -> list[dict[str, Any]]:
-    """Every claim's verdict; a profile whose numbers mean nothing judges none. Each claim
-    draws its bootstrap from its own stream, so adding unrelated runs leaves it unchanged."""
+    """Every claim's verdict; a profile whose numbers mean nothing judges none. Each check
+    of each claim draws its bootstrap from a stream of its own, so adding runs that another
+    check uses leaves its interval as it was."""
     ledger = []
     for number, judge in enumerate(CLAIMS, start=1):
-        claim = judge(groups, demo_returns, np.random.default_rng([seed, number]))
+        claim = judge(groups, demo_returns, claim_streams(seed, number))
         claim["budget_note"] = budget_note(number, groups)
         if not meaningful and not claim["verdict"].startswith("not judged"):
             claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"

@@ -332,7 +332,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                          out_dir: Path, guidance: list[dict[str, Any]] | None = None) -> Path:
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
-    from replicate.claims import ANT, budget_note, claim_5
+    from replicate.claims import ANT, budget_note, claim_5, claim_streams
     from replicate.figures import paired_curves_png
     from replicate.stats import paired_difference
 
@@ -359,7 +359,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     claim = None
     if env_id == ANT and pairs:
         groups = claim_groups(outcome.runs)
-        claim = claim_5(groups, {}, rng)
+        claim = claim_5(groups, {}, claim_streams(REPORT_SEED, 5))  # as Fig. 3's ledger
         claim["budget_note"] = budget_note(5, groups)
         if not profile.meaningful:
             claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"

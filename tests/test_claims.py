@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from replicate.claims import (ANT, CHEETAH, HOPPER, MOUNTAINCAR, WALKER, Group, claim_1,
-                              claim_2, claim_3, claim_4, claim_5, instability, judge_claims)
+                              claim_2, claim_3, claim_4, claim_5, claim_streams, instability,
+                              judge_claims)
 
 
 def group(env_id, algo, finals, curves=None):
@@ -15,7 +16,7 @@ def group(env_id, algo, finals, curves=None):
 
 
 def rng():
-    return np.random.default_rng(0)
+    return claim_streams(0, 1)
 
 
 def test_instability_hand_computed():
@@ -103,3 +104,20 @@ def test_mujoco_claims_judge_the_curves_and_state_what_the_budget_can_show():
     assert len(areas) == 2 and all(p["verdict"] == "reproduced" for p in areas)
     assert all(p["verdict"] != "reproduced" for p in finals)  # equal ends: not above 0
     assert "200,000 steps" in claim_3["budget_note"]
+
+
+def test_a_checks_interval_does_not_move_when_runs_for_another_check_arrive():
+    """Claim 3 gains DDPGfD on Walker2d: its new checks appear, and every check it had keeps
+    its interval to the last digit (each check bootstraps from a stream named by its label)."""
+    rng_data = np.random.default_rng(4)
+    groups = {}
+    for env in (WALKER, ANT):
+        for algo in ("sac", "drl-eg"):
+            groups[(env, algo)] = group(env, algo, rng_data.normal(1000, 300, size=3))
+    before = judge_claims(groups, {WALKER: 2000.0, ANT: 2000.0}, 0, True)[2]["parts"]
+    groups[(WALKER, "ddpgfd")] = group(WALKER, "ddpgfd", rng_data.normal(4000, 100, size=3))
+    after = judge_claims(groups, {WALKER: 2000.0, ANT: 2000.0}, 0, True)[2]["parts"]
+    assert len(after) == len(before) + 2
+    by_label = {p["what"]: p for p in after}
+    for part in before:
+        assert by_label[part["what"]] == part
