@@ -478,7 +478,6 @@ class StackedRLPDAgent(StackedTwinQAgent):
                 "entropy": entropy}
 
 
-
 class StackedIBRLAgent(StackedTwinQAgent):
     """IBRL (``baselines.ibrl``) for N members: twin-Q SAC's stacked networks; each member
     acts and bootstraps with the higher-valued (by its target critics) of its actor's
@@ -533,6 +532,7 @@ class StackedIBRLAgent(StackedTwinQAgent):
             return super().make_replay(members, obs_dim, capacity)
         n = len(self.demos.observations)
         replay = StackedReplay(members, obs_dim, self.act_dim, n + capacity, self.device)
+
         def tile(x: Any) -> np.ndarray:  # one transition, the same for every member
             return np.repeat(np.asarray(x, dtype=np.float32)[None], members, axis=0)
 
@@ -563,6 +563,7 @@ class StackedIBRLAgent(StackedTwinQAgent):
         q_rl = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
         q_il = critic_pairs(self.critics_target, next_obs, next_il_actions).min(dim=1).values
         return torch.maximum(q_rl, q_il) - alpha * next_log_prob
+
 
 def agent_state(agent: StackedActor) -> dict[str, Any]:
     state = {name: copy.deepcopy(getattr(agent, name).state_dict()) for name in agent.MODULES}
@@ -680,12 +681,12 @@ class StackedGuidedExplorer(StackedExplorer):
         self.rngs = state["guider_rngs"]
 
 
-
 class StackedIBRLExplorer(StackedExplorer):
     """IBRL's choice for N members; a step counts as guided where the imitation action won."""
 
     def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.agent.propose(obs, deterministic=False)
+
 
 def evaluate_members(envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int,
                      members: np.ndarray) -> list[list[float]]:
@@ -916,7 +917,6 @@ def train_rlpd(bctx: BatchContext, configs: list[RLPDConfig]) -> None:
     run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
 
 
-
 @register_batched("ibrl")
 def train_ibrl(bctx: BatchContext, configs: list[IBRLConfig]) -> None:
     demos = bctx.members[0].demos
@@ -935,6 +935,7 @@ def train_ibrl(bctx: BatchContext, configs: list[IBRLConfig]) -> None:
     agent = StackedIBRLAgent(agents, config, imitations, demos if preload else None,
                              bctx.device)
     run_stacked_off_policy(bctx, agent, StackedIBRLExplorer(agent))
+
 
 __all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent", "StackedRLPDAgent",
            "StackedIBRLAgent",
