@@ -66,3 +66,34 @@ def batch_curves(algo: str, config, path, stop_at: int | None = None, seeds=(0, 
     except _Interrupted:
         pass
     return points
+
+
+def assert_batch_updates_agree(stacked, singles: list, buffers: list, rows: int, seeds,
+                               updates: int) -> None:
+    """``updates`` updates of a seed batch and of each member's one-run agent, each drawing
+    its replay rows from a generator of its seed: the same losses, member by member, within
+    1e-5."""
+    import numpy as np
+    import pytest
+
+    stacked_rngs = [np.random.default_rng(s) for s in seeds]
+    one_rngs = [np.random.default_rng(s) for s in seeds]
+    for _ in range(updates):
+        losses = stacked.update(stacked_rngs)
+        for k, agent in enumerate(singles):
+            reference = agent.update(buffers[k].sample(rows, one_rngs[k]))
+            assert set(losses) == set(reference)
+            for name, value in reference.items():
+                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5,
+                                                               rel=1e-5), name
+
+
+def assert_batch_policies_agree(stacked, singles: list) -> None:
+    """Member k's stacked policy layers equal one-run agent k's, within 1e-5."""
+    import torch
+
+    for k, agent in enumerate(singles):
+        linears = [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)]
+        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k), linears):
+            assert torch.allclose(weight, layer.weight, atol=1e-5)
+            assert torch.allclose(bias, layer.bias, atol=1e-5)

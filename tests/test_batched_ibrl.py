@@ -14,7 +14,8 @@ from baselines.sac_twin_q import TwinQSACAgent
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, batch_curves, curve_signature
+from tests.helpers import (MOUNTAINCAR, TINY, assert_batch_policies_agree,
+                           assert_batch_updates_agree, batch_curves, curve_signature)
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT, dtype=np.float32), np.ones(ACT, dtype=np.float32)
@@ -70,25 +71,14 @@ def test_each_members_replay_starts_with_the_demonstrations():
                                           np.asarray(getattr(demos, name), dtype=np.float32))
 
 
-def _train_both(stacked: StackedIBRLAgent, singles: list, buffers: list, updates: int
-                ) -> None:
-    """The same updates in the batch and in each one-run agent (so that the online and
-    target critics differ, as they do in training)."""
-    stacked_rngs = [np.random.default_rng(s) for s in SEEDS]
-    one_rngs = [np.random.default_rng(s) for s in SEEDS]
-    for _ in range(updates):
-        stacked.update(stacked_rngs)
-        for k, agent in enumerate(singles):
-            agent.update(buffers[k].sample(ROWS, one_rngs[k]))
-
-
 @pytest.mark.parametrize("imitation", ["functional", "bc"])
 def test_batched_ibrl_proposals_equal_one_run_proposals(imitation):
     """After a few updates, sampled and deterministic: the same executed actions, and the
     imitation policy wins where it wins in the one-run agent (whose choice is by its target
     critics), the actor's noise drawn from each member's one-run stream."""
     demos, _, stacked, singles = _pair(imitation)
-    _train_both(stacked, singles, _fill(stacked, demos), updates=20)
+    # trained first, so that the online and target critics differ as in training
+    assert_batch_updates_agree(stacked, singles, _fill(stacked, demos), ROWS, SEEDS, updates=20)
     assert not torch.allclose(stacked.critics.weights[-1], stacked.critics_target.weights[-1])
     rng = np.random.default_rng(5)
     imitated_any = []
@@ -123,21 +113,9 @@ def test_batched_ibrl_updates_equal_one_run_updates(imitation):
     losses, then weights, within 1e-5."""
     demos, config, stacked, singles = _pair(imitation)
     buffers = _fill(stacked, demos)
-    stacked_rngs = [np.random.default_rng(s) for s in SEEDS]
-    one_rngs = [np.random.default_rng(s) for s in SEEDS]
-    for _ in range(6):
-        losses = stacked.update(stacked_rngs)
-        for k, agent in enumerate(singles):
-            reference = agent.update(buffers[k].sample(ROWS, one_rngs[k]))
-            assert set(losses) == set(reference)
-            for name, value in reference.items():
-                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5,
-                                                               rel=1e-5), name
+    assert_batch_updates_agree(stacked, singles, buffers, ROWS, SEEDS, updates=6)
+    assert_batch_policies_agree(stacked, singles)
     for k, agent in enumerate(singles):
-        linears = [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)]
-        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k), linears):
-            assert torch.allclose(weight, layer.weight, atol=1e-5)
-            assert torch.allclose(bias, layer.bias, atol=1e-5)
         for mine, theirs in ((stacked.critics, agent.critics),
                              (stacked.critics_target, agent.critics_target)):
             for value, reference in zip(mine.parameters(), theirs.parameters()):

@@ -13,7 +13,8 @@ from baselines.rlpd import RLPDAgent, RLPDConfig, SymmetricReplay
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, batch_curves
+from tests.helpers import (MOUNTAINCAR, TINY, assert_batch_policies_agree,
+                           assert_batch_updates_agree, batch_curves)
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT), np.ones(ACT)
@@ -68,22 +69,10 @@ def test_batched_rlpd_updates_equal_one_run_updates(utd):
         [RLPDAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS],
         config, preloaded_buffer(demos, OBS, ACT, online_capacity=0), "cpu")
     stacked.buffer, buffers = _filled(demos)
-    stacked_rngs = [np.random.default_rng(s) for s in SEEDS]
-    one_rngs = [np.random.default_rng(s) for s in SEEDS]
-    for _ in range(6):
-        losses = stacked.update(stacked_rngs)
-        for k, agent in enumerate(singles):
-            reference = agent.update(buffers[k].sample(ROWS, one_rngs[k]))
-            assert set(losses) == set(reference)
-            for name, value in reference.items():
-                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5,
-                                                               rel=1e-5), name
+    assert_batch_updates_agree(stacked, singles, buffers, ROWS, SEEDS, updates=6)
     assert stacked.critic_updates == 6
+    assert_batch_policies_agree(stacked, singles)
     for k, agent in enumerate(singles):
-        linears = [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)]
-        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k), linears):
-            assert torch.allclose(weight, layer.weight, atol=1e-5)
-            assert torch.allclose(bias, layer.bias, atol=1e-5)
         rows = slice(k * config.num_qs, (k + 1) * config.num_qs)
         for mine, theirs in ((stacked.critics, agent.critics),
                              (stacked.critics_target, agent.critics_target)):
