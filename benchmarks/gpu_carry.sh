@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Build, on this machine, what a lent GPU machine needs beside its own image (python 3.12,
-# torch with CUDA, numpy, scipy, ...) to run the harness: the simulators as wheels in .whl/
-# and dm-control unpacked into .gpusite/ without the assets no task here uses (dog, the
+# torch with CUDA, numpy, scipy, ...) to run the harness: the simulators and optuna (the
+# threshold ablation's trials; not in that image) as wheels in .whl/ and dm-control
+# unpacked into .gpusite/ without the assets no task here uses (dog, the
 # locomotion walkers, soccer: 100 MB of the 117), so that both fit the 64 MiB a device call
 # may carry. Both folders are ignored by git (.git/info/exclude).
 # On the lent machine, before a sitting script:
@@ -11,7 +12,8 @@
 # usage: benchmarks/gpu_carry.sh   (from the repository root; needs the package index)
 set -eu
 wheels="mujoco==3.17.0 gymnasium==1.4.0 farama-notifications==0.0.4 glfw==2.11.0
-pyopengl==3.1.10 dm-env==1.6 dm-tree==0.1.10 shimmy==2.0.1"
+pyopengl==3.1.10 dm-env==1.6 dm-tree==0.1.10 shimmy==2.0.1
+optuna==5.0.0 alembic==1.20.1 mako==1.4.3 sqlalchemy==2.1.9 colorlog==6.12.0"
 mkdir -p .whl .gpusite
 for exclude in /.whl/ /.gpusite/; do
     grep -qxF "$exclude" .git/info/exclude || echo "$exclude" >> .git/info/exclude

@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # The jobs of one whole GPU loan (about 11 minutes of training), for
 # benchmarks/device_detached.sh, chosen so that every run can finish inside the loan (a
-# checkpoint cannot come back: over the 16 MiB a returned file may have). On the GPU: the
-# comparison's RLPD on both sparse tasks as seed batches of 5 at the reduced budget (50k
-# steps; the SAC and DRL-EG batches of 5 took 377-480 s there on an H100, two sharing it;
-# RLPD's ten critics cost more), after a two-seed batch of it trains there (the batched
-# RLPD had not met a GPU when this was written: if that check fails, its log,
-# rlpd-gpu-check.log, says why and the GPU stays idle). On the cores, niced: IBRL on both sparse tasks and JSRL on
-# ball_in_cup, one run per process (15 runs; on the last loan's cores JSRL took about 700 s
-# a run, DDPGfD 610-650 s, 15 at once). Every grid trains only what the store lacks; each
-# job's log is LOGDIR/<job>.log. dm-control must be installed there (gpu_carry.sh).
+# checkpoint cannot come back: over the 16 MiB a returned file may have). Every grid trains
+# only what the store lacks; each job's log is LOGDIR/<job>.log; the simulators and optuna
+# must be installed there (gpu_carry.sh). On the GPU: the comparison's RLPD on both sparse
+# tasks as seed batches of 5 at the reduced budget (50k steps), after a two-seed batch of it
+# trains there (if that check fails, rlpd-gpu-check.log says why and the GPU stays idle).
+# The H200 loan of 2026-11-27 trained both batches in 310-316 s, sharing the GPU. On the
+# cores, niced: JSRL on ball_in_cup (that loan: 643-661 s a run) and the quick threshold
+# ablation on MountainCar, whose committed report predates the run store (its missing runs,
+# about 250 s each on one core, 8 workers; that loan lacked optuna, so it did not run).
+# IBRL's sparse cells train as CPU seed batches on the sessions' own cores.
 # usage (on the lent machine, after gpu_carry.sh's install line):
 #   benchmarks/device_detached.sh start /tmp/sitting benchmarks/gpu_loan_jobs.sh /tmp/sitting
 #   benchmarks/device_detached.sh wait /tmp/sitting $OUT 570     (again while "running")
@@ -47,9 +48,11 @@ CHECK
                 --out "$(mktemp -d)" $dry > "$logs/rlfd-sparse-rlpd-batches.log" 2>&1
         fi
     } &
-    nice -n 10 "$python" -m replicate compare-rlfd --profile reduced --envs $sparse \
-        --algos ibrl --workers 10 --device cpu --checkpoint-interval 0 \
-        --out "$(mktemp -d)" $dry > "$logs/rlfd-sparse-ibrl.log" 2>&1 &
+    if [ -z "$dry" ]; then  # the ablation has no dry run
+        nice -n 10 "$python" -m replicate ablate-threshold --profile quick --workers 8 \
+            --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" \
+            > "$logs/ablate-quick.log" 2>&1 &
+    fi
     nice -n 10 "$python" -m replicate compare-rlfd --profile reduced \
         --envs dm_control/ball_in_cup-catch-v0 --algos jsrl --workers 5 --device cpu \
         --checkpoint-interval 0 --out "$(mktemp -d)" $dry > "$logs/rlfd-cup-jsrl.log" 2>&1 &
