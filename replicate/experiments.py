@@ -359,10 +359,11 @@ def batch_bytes(prepared: PreparedRun, members: int) -> int:
 
 
 def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-               workers: int, where: str = "local") -> None:
+               workers: int, where: str = "local", batch: int | None = None) -> None:
     """What a grid would train: its missing runs per env and algorithm, their env steps,
-    and the minutes they would take one run per process (from the speeds the store's runs
-    recorded), per cell in one process and in all on up to ``workers`` ``where`` workers."""
+    and the minutes they would take (from the speeds the store's runs recorded), per cell in
+    one process and in all on up to ``workers`` ``where`` workers, one run per process or,
+    with ``batch``, in the seed batches ``plan_batches`` makes."""
     cells: dict[tuple[str, str], list[PreparedRun]] = {}
     for p in missing:
         cells.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
@@ -380,11 +381,19 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
               f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
               f"{where} CPUs")
         return
-    used = max(1, min(workers, len(missing)))
-    longest = max((estimate_minutes([p], store, 1, rates) for p in missing), default=0.0)
-    minutes = max(estimate_minutes(missing, store, used, rates), longest)
+    tasks = plan_batches(missing, batch)
+    batches = [t for t in tasks if isinstance(t, list)]
+    used = max(1, min(workers, len(tasks)))
+    longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)
+    minutes = max(estimate_minutes(tasks, store, used, rates), longest)
+    how = "one run per process"
+    if batches:
+        alone = len(tasks) - len(batches)
+        how = (f"{sum(len(b) for b in batches)} runs in {len(batches)} seed "
+               f"batch{'es' if len(batches) > 1 else ''}"
+               + (f", {alone} one run per process" if alone else ""))
     print(f"  total {total:,} env steps: about {minutes:,.0f} min on {used} local worker(s), "
-          "one run per process")
+          f"{how}")
 
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
@@ -421,7 +430,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     if dry_run:
         resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
         print_plan(prepared, missing, store, workers or os.cpu_count() or 1,
-                   "local" if executor == "local" else "the Ray cluster's")
+                   "local" if executor == "local" else "the Ray cluster's", batch)
         return GridOutcome([], [], None)
     if executor == "ray":
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
