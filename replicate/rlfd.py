@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import base64
 import functools
+import os
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -246,6 +247,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "failed": outcome.failed, "skipped": outcome.skipped,
         "random_episodes": RANDOM_EPISODES, "guidance": guidance or [],
+        "other_profiles": _other_profiles(profile.name),
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
@@ -268,6 +270,17 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     }
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
+
+
+def _other_profiles(profile: str) -> list[dict[str, Any]]:
+    """The comparison at every other meaningful profile: its tasks, and its report's path
+    relative to this one's default directory, so that a reader of the quick report finds
+    the sparse tasks' comparison and back."""
+    here = report_dir(profile, "rlfd")
+    return [{"name": name, "tasks": list(RLFD_BUDGETS[name]),
+             "href": (Path(os.path.relpath(report_dir(name, "rlfd"), here)) / "index.html"
+                      ).as_posix()}
+            for name in RLFD_BUDGETS if name not in ("smoke", profile)]
 
 
 def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),

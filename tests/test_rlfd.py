@@ -62,6 +62,17 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
     assert [v for v in more["verdicts"] if v["other"] != "jsrl"] == result["verdicts"]
 
 
+def test_each_profile_report_points_to_the_other_profiles_comparisons():
+    from replicate.rlfd import _other_profiles
+
+    quick = {o["name"]: o for o in _other_profiles("quick")}
+    assert set(quick) == {"reduced", "paper"}  # never the smoke one, nor itself
+    assert quick["reduced"]["href"] == "../reduced/rlfd/index.html"
+    assert SPARSE_TASKS[0] in quick["reduced"]["tasks"]
+    back = {o["name"]: o["href"] for o in _other_profiles("reduced")}
+    assert back == {"quick": "../../rlfd/index.html", "paper": "../../paper/rlfd/index.html"}
+
+
 @pytest.mark.slow
 def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "rlfd"
@@ -82,6 +93,7 @@ def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, ca
     html = (out / "index.html").read_text()
     assert 'id="smoke-warning"' in html and "data:image/png;base64," in html
     assert 'id="guidance"' in html and [g["t2"] for g in summary["guidance"]] == [[0.05]]
+    assert 'href="../../reduced/rlfd/index.html"' in html  # from reports/smoke/rlfd
     from replicate.rlfd import rebuild_rlfd
 
     rebuilt = rebuild_rlfd("smoke", store, tmp_path / "again")
