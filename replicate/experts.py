@@ -68,6 +68,23 @@ def expert_path(env_id: str) -> Path:
                                                           f"{_file_name(source)}.pt")))
 
 
+def expert_training_curve(env_id: str) -> dict[str, Any] | None:
+    """The evaluation curve of the run that trained ``env_id``'s committed expert (its
+    file's metadata): the algorithm, the seed, the steps and the mean evaluation returns,
+    and ``best_of``, the batch's size when the expert is the best of a seed batch (so its
+    curve is the luckiest seed's). None where no expert is committed."""
+    path = expert_path(env_id)
+    if not path.is_file():
+        return None
+    metadata = torch.load(path, weights_only=True, map_location="cpu")["metadata"]
+    curve = metadata["curve"]
+    curve = json.loads(curve) if isinstance(curve, str) else curve
+    return {"algo": metadata["algo"], "seed": metadata["seed"],
+            "steps": [int(step) for step, _ in curve],
+            "returns": [float(value) for _, value in curve],
+            "best_of": len(metadata.get("batch_best_eval_return", {})) or None}
+
+
 def work_dir_for(env_id: str, root: Path) -> Path:
     return Path(root) / _file_name(env_id)
 

@@ -157,12 +157,18 @@ def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str
 
 def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int],
                    seed: int) -> list[dict[str, Any]]:
-    """Our SAC beside published SAC at every published budget within ours."""
+    """Our SAC beside published SAC at every published budget within ours, and the
+    evaluation at those steps of the run that trained the env's expert (the harness's
+    twin-Q SAC, one seed), where it trained that far."""
+    from replicate.experts import expert_training_curve
+
     rows = []
     for env_id in sorted({e for e, _ in groups}):
         if env_id not in budgets:
             continue
         sac = groups.get((env_id, "sac"))
+        expert_run = expert_training_curve(env_id) if published_points(env_id, budgets[env_id]) \
+            else None
         for point in published_points(env_id, budgets[env_id]):
             ours = None
             if sac is not None and sac.steps is not None and point.steps in set(sac.steps):
@@ -170,9 +176,13 @@ def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int]
                 est = bootstrap_mean(column, substream(seed, env_id, "sac", str(point.steps)))
                 ours = {"mean": float(est.value[0]), "low": float(est.low[0]),
                         "high": float(est.high[0]), "n": len(column)}
+            expert = None
+            if expert_run is not None and point.steps in expert_run["steps"]:
+                expert = {k: expert_run[k] for k in ("algo", "seed", "best_of")}
+                expert["return"] = expert_run["returns"][expert_run["steps"].index(point.steps)]
             rows.append({"env_id": env_id, "steps": point.steps, "mean": point.mean,
                          "std": point.std, "label": point.label, "source": point.source,
-                         "ours": ours})
+                         "ours": ours, "expert_run": expert})
     return rows
 
 

@@ -84,6 +84,20 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     assert [r["steps"] for r in tianshou] == [100_000, 200_000]  # none beyond our budget
     assert tianshou[1]["ours"]["mean"] == 2200.0 and tianshou[1]["ours"]["n"] == 2
     assert tianshou[1]["mean"] == published_points("Ant-v5", 200_000)[1].mean == 2133.0
+    from replicate.experts import expert_training_curve
+
+    expert = expert_training_curve("Ant-v5")  # the committed expert's own training run
+    at = dict(zip(expert["steps"], expert["returns"]))
+    assert [r["expert_run"]["return"] for r in tianshou] == [at[100_000], at[200_000]]
+    assert tianshou[0]["expert_run"]["algo"] == "sac-twin-q"
+    assert expert_training_curve("MountainCarContinuous-v0") is None  # no expert file
+    walker = {("Walker2d-v5", "sac"): Group("Walker2d-v5", "sac", [0, 1], curves[:, -1],
+                                             curves, steps)}
+    by_steps = {r["steps"]: r["expert_run"] for r in published_rows(walker, {"Walker2d-v5":
+                                                                             200_000}, 0)}
+    trained = expert_training_curve("Walker2d-v5")  # the best of a seed batch, 180k steps
+    assert by_steps[100_000]["best_of"] == trained["best_of"] > 1
+    assert (by_steps[200_000] is None) == (200_000 not in trained["steps"])
     eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, 0)
     assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200
 
