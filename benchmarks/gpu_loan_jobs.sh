@@ -6,11 +6,11 @@
 # be installed there (gpu_carry.sh).
 # On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 as one seed batch of 5
 # (200k steps). Whether a 200k MuJoCo batch fits a loan is what this measures: the bench's
-# H200 rate for a batch of 8 with nothing beside it gives about 8 minutes, the rates of
-# loans whose batches shared the GPU and the cores about 25; its log's progress bar gives
-# the rate either way. On the cores, at the lowest priority so that the batch's env workers
-# come first: the quick threshold ablation on MountainCar, whose committed report predates
-# the run store (its missing runs, about 250 s each on one core).
+# H200 rates for DRL-EG (not GMM) with nothing beside it give about 8-10 minutes, the rates
+# of loans whose batches shared the GPU and the cores about 25; its log's progress bar gives
+# the rate either way. The cores stay free for the batch's env workers. (CPU-only grids,
+# such as the quick threshold ablation, train on the sessions' own machine: its report
+# checks T2 = 0 against SAC runs bit for bit, and those were trained here.)
 # Earlier lists trained the comparison's sparse cells (RLPD batches of 5 in 310-316 s on an
 # H200, two sharing it; JSRL 643-661 s a run on its cores); all of them are in runs/.
 # usage (on the lent machine, after gpu_carry.sh's install line):
@@ -25,11 +25,6 @@ trap 'kill $(jobs -p) 2>/dev/null' TERM
     "$python" -m replicate fig3 --profile reduced --algos drl-eg-gmm --envs Hopper-v5 \
         --batch 5 --workers 1 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
         $dry > "$logs/fig3-hopper-gmm-batch.log" 2>&1 &
-    if [ -z "$dry" ]; then  # the ablation has no dry run
-        nice -n 19 "$python" -m replicate ablate-threshold --profile quick --workers 6 \
-            --device cpu --checkpoint-interval 0 --out "$(mktemp -d)" \
-            > "$logs/ablate-quick.log" 2>&1 &
-    fi
 }
 status=0
 for job in $(jobs -p); do wait "$job" || status=$?; done

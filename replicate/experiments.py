@@ -388,10 +388,10 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     minutes = max(estimate_minutes(tasks, store, used, rates), longest)
     how = "one run per process"
     if batches:
-        alone = len(tasks) - len(batches)
-        how = (f"{sum(len(b) for b in batches)} runs in {len(batches)} seed "
+        alone, batched = len(tasks) - len(batches), sum(len(b) for b in batches)
+        how = (f"{batched} run{'s' if batched > 1 else ''} in {len(batches)} seed "
                f"batch{'es' if len(batches) > 1 else ''}"
-               + (f", {alone} one run per process" if alone else ""))
+               + (f", {alone} run{'s' if alone > 1 else ''} one per process" if alone else ""))
     print(f"  total {total:,} env steps: about {minutes:,.0f} min on {used} local worker(s), "
           f"{how}")
 

@@ -71,13 +71,16 @@ def expert_path(env_id: str) -> Path:
 def expert_training_curve(env_id: str) -> dict[str, Any] | None:
     """The evaluation curve of the run that trained ``env_id``'s committed expert (its
     file's metadata): the algorithm, the seed, the steps and the mean evaluation returns,
-    and ``best_of``, the batch's size when the expert is the best of a seed batch (so its
-    curve is the luckiest seed's). None where no expert is committed."""
+    and ``best_of``, how many of a seed batch's members it was chosen from (so its curve is
+    the luckiest seed's), else None. None where no expert is committed, or its file records
+    no curve."""
     path = expert_path(env_id)
     if not path.is_file():
         return None
     metadata = torch.load(path, weights_only=True, map_location="cpu")["metadata"]
-    curve = metadata["curve"]
+    curve = metadata.get("curve")
+    if not curve:
+        return None
     curve = json.loads(curve) if isinstance(curve, str) else curve
     return {"algo": metadata["algo"], "seed": metadata["seed"],
             "steps": [int(step) for step, _ in curve],

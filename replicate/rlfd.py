@@ -247,7 +247,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "failed": outcome.failed, "skipped": outcome.skipped,
         "random_episodes": RANDOM_EPISODES, "guidance": guidance or [],
-        "other_profiles": _other_profiles(profile.name),
+        "other_profiles": _other_profiles(profile.name, out_dir),
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
@@ -272,15 +272,22 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     return out_dir / "index.html"
 
 
-def _other_profiles(profile: str) -> list[dict[str, Any]]:
-    """The comparison at every other meaningful profile: its tasks, and its report's path
-    relative to this one's default directory, so that a reader of the quick report finds
-    the sparse tasks' comparison and back."""
-    here = report_dir(profile, "rlfd")
-    return [{"name": name, "tasks": list(RLFD_BUDGETS[name]),
-             "href": (Path(os.path.relpath(report_dir(name, "rlfd"), here)) / "index.html"
-                      ).as_posix()}
-            for name in RLFD_BUDGETS if name not in ("smoke", profile)]
+def _other_profiles(profile: str, out_dir: Path) -> list[dict[str, Any]]:
+    """The comparison at every other meaningful profile: its tasks, its report's path in
+    the repository, and a link relative to ``out_dir`` when this report is written where
+    the profile's reports go by default (``reports/`` or ``reports/<profile>/``, a rebuild's
+    folder beside it too), else None: elsewhere the other reports are not beside it."""
+    here = report_dir(profile, "rlfd").parent.parts
+    default_layout = Path(out_dir).resolve().parent.parts[-len(here):] == here
+    others = []
+    for name in RLFD_BUDGETS:
+        if name in ("smoke", profile):
+            continue
+        there = report_dir(name, "rlfd") / "index.html"
+        href = Path(os.path.relpath(there, report_dir(profile, "rlfd"))).as_posix()
+        others.append({"name": name, "tasks": list(RLFD_BUDGETS[name]),
+                       "path": there.as_posix(), "href": href if default_layout else None})
+    return others
 
 
 def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),

@@ -161,7 +161,7 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3
     assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
                  "--algos", "sac", "ppo", "--batch", "2", "--dry-run"]) == 0
     plan = capsys.readouterr().out  # SAC's two seeds batch; PPO has no batched trainer
-    assert plan.rstrip().endswith("2 runs in 1 seed batch, 2 one run per process")
+    assert plan.rstrip().endswith("2 runs in 1 seed batch, 2 runs one per process")
     assert sorted(p.name for p in store.iterdir()) == before and not out.exists()
 
     assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
