@@ -4,8 +4,8 @@
 # file may have), so only runs that finish inside the loan count. Every grid trains only
 # what the store lacks; each job's log is LOGDIR/<job>.log; the simulators and optuna must
 # be installed there (gpu_carry.sh).
-# On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 as one seed batch of 5
-# (200k steps). Whether a 200k MuJoCo batch fits a loan is what this measures: the bench's
+# On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 (or $GMM_ENV) as one seed
+# batch of 5 (200k steps). Whether a 200k MuJoCo batch fits a loan is what this measures: the bench's
 # H200 rates for DRL-EG (not GMM) with nothing beside it give about 8-10 minutes, the rates
 # of loans whose batches shared the GPU and the cores about 25; its log's progress bar gives
 # the rate either way. The cores stay free for the batch's env workers. (CPU-only grids,
@@ -19,12 +19,13 @@
 set -u
 logs=${1:?usage: benchmarks/gpu_loan_jobs.sh LOGDIR [--dry-run]} dry=${2:-}
 python=${PYTHON:-python3}
+env_id=${GMM_ENV:-Hopper-v5}  # another env where this machine's CPU batches train Hopper's
 trap 'kill $(jobs -p) 2>/dev/null' TERM
 # shellcheck disable=SC2086  # $dry splits on purpose
 {
-    "$python" -m replicate fig3 --profile reduced --algos drl-eg-gmm --envs Hopper-v5 \
+    "$python" -m replicate fig3 --profile reduced --algos drl-eg-gmm --envs "$env_id" \
         --batch 5 --workers 1 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
-        $dry > "$logs/fig3-hopper-gmm-batch.log" 2>&1 &
+        $dry > "$logs/fig3-gmm-batch.log" 2>&1 &
 }
 status=0
 for job in $(jobs -p); do wait "$job" || status=$?; done
