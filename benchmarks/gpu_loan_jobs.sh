@@ -4,13 +4,13 @@
 # file may have), so only runs that finish inside the loan count. Every grid trains only
 # what the store lacks; each job's log is LOGDIR/<job>.log; the simulators and optuna must
 # be installed there (gpu_carry.sh).
-# On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 (or $GMM_ENV) as one
-# seed batch of 5 (200k steps). Whether a 200k MuJoCo batch fits a loan is what this
-# measures: the bench's H200 rates for DRL-EG (not GMM) with nothing beside it give about
-# 8-10 minutes, the rates of loans whose batches shared the GPU and the cores about 25; its
-# log's progress bar gives the rate either way. The cores stay free for the batch's env workers. (CPU-only grids,
-# such as the quick threshold ablation, train on the sessions' own machine: its report
-# checks T2 = 0 against SAC runs bit for bit, and those were trained here.)
+# On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 (or $GMM_ENV) as one seed
+# batch of 5 (200k steps). Whether a 200k MuJoCo batch fits a loan is what this measures:
+# the bench's H200 rates for DRL-EG (not GMM) with nothing beside it give about 8-10
+# minutes, the rates of loans whose batches shared the GPU and the cores about 25; its log's
+# progress bar gives the rate either way. The cores stay free for the batch's env workers.
+# (CPU-only grids, such as the quick threshold ablation, train on the sessions' own machine:
+# its report checks T2 = 0 against SAC runs bit for bit, and those were trained here.)
 # Earlier lists trained the comparison's sparse cells (RLPD batches of 5 in 310-316 s on an
 # H200, two sharing it; JSRL 643-661 s a run on its cores); all of them are in runs/.
 # usage (on the lent machine, after gpu_carry.sh's install line):
