@@ -167,9 +167,9 @@ def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int]
         if env_id not in budgets:
             continue
         sac = groups.get((env_id, "sac"))
-        expert_run = expert_training_curve(env_id) if published_points(env_id, budgets[env_id]) \
-            else None
-        for point in published_points(env_id, budgets[env_id]):
+        points = published_points(env_id, budgets[env_id])
+        expert_run = expert_training_curve(env_id) if points else None
+        for point in points:
             ours = None
             if sac is not None and sac.steps is not None and point.steps in set(sac.steps):
                 column = sac.curves[:, list(sac.steps).index(point.steps)]
