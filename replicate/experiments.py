@@ -265,10 +265,12 @@ def _task_ids(task: PreparedRun | list[PreparedRun]) -> list[str]:
 DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
 
 
-def measured_rates(store: Path) -> dict[tuple[str, str], float]:
+def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], float]:
     """Env steps per second of the process that trained each of the store's finished runs
-    (a seed batch's members' steps summed), averaged by (algorithm, env)."""
-    rates: dict[tuple[str, str], list[float]] = {}
+    (a seed batch's members' steps summed), averaged by (algorithm, env): of the runs trained
+    on CPU, or with ``on_gpu`` of those trained on a GPU where an (algorithm, env) has any
+    (a GPU batch steps several times faster than a CPU process, so the two never mix)."""
+    rates: dict[tuple[bool, str, str], list[float]] = {}
     if store.is_dir():
         for path in store.iterdir():
             if is_complete(path):
@@ -276,30 +278,42 @@ def measured_rates(store: Path) -> dict[tuple[str, str], float]:
                 rate = run.provenance.get("env_steps_per_s")
                 if rate:
                     rate *= (run.provenance.get("batch") or {}).get("size", 1)
-                    rates.setdefault((run.spec["algo"], run.spec["env_id"]), []).append(rate)
-    return {key: sum(values) / len(values) for key, values in rates.items()}
+                    gpu = str(run.provenance.get("device", "cpu")).startswith("cuda")
+                    key = (gpu, run.spec["algo"], run.spec["env_id"])
+                    rates.setdefault(key, []).append(rate)
+    means = {key: sum(values) / len(values) for key, values in rates.items()}
+    chosen = {(algo, env_id): rate for (gpu, algo, env_id), rate in means.items() if not gpu}
+    if on_gpu:
+        chosen.update({(algo, env_id): rate
+                       for (gpu, algo, env_id), rate in means.items() if gpu})
+    return chosen
 
 
 def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
-                     workers: int,
-                     rates: dict[tuple[str, str], float] | None = None) -> float:
+                     workers: int, rates: dict[tuple[str, str], float] | None = None,
+                     on_gpu: bool = False) -> float:
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
-    store (the same algorithm elsewhere, else a guess; ``rates``: ``measured_rates(store)``
-    read already). A process is taken to step as fast whatever its batch's size and
+    store (else the same algorithm's slowest env, else the env's slowest algorithm, else a
+    guess; ``rates``: ``measured_rates(store, on_gpu)`` read already). A process is taken to step as fast whatever its batch's size and
     wherever the runs trained: about so on CPU, where the products dominate; a GPU batch
     steps faster the larger it is, so rates from large GPU batches make smaller batches and
     single runs look faster than they are."""
-    rates = measured_rates(store) if rates is None else rates
+    rates = measured_rates(store, on_gpu) if rates is None else rates
     by_algo: dict[str, list[float]] = {}
-    for (algo, _), rate in rates.items():
+    by_env: dict[str, list[float]] = {}
+    for (algo, env_id), rate in rates.items():
         by_algo.setdefault(algo, []).append(rate)
+        by_env.setdefault(env_id, []).append(rate)
     seconds = 0.0
     for task in tasks:
         members = task if isinstance(task, list) else [task]
         p = members[0]
-        rate = rates.get((p.spec.algo, p.spec.env_id)) or (
-            min(by_algo[p.spec.algo]) if p.spec.algo in by_algo else DEFAULT_STEPS_PER_S)
+        # an untimed algorithm (a new one, a variant) costs most like the env's slowest
+        # timed one: the env's step and network sizes dominate, and slow errs on the safe side
+        rate = (rates.get((p.spec.algo, p.spec.env_id))
+                or min(by_algo.get(p.spec.algo) or by_env.get(p.spec.env_id)
+                       or [DEFAULT_STEPS_PER_S]))
         seconds += sum(m.spec.total_steps for m in members) / rate
     return seconds / workers / 60
 
@@ -308,6 +322,15 @@ EXECUTORS = ("local", "ray")
 
 
 DEFAULT_GPU_BATCH = 64  # members per batch on a GPU when --batch is not given
+
+
+def _gpu_requested(device: str, missing: list[PreparedRun]) -> bool:
+    """Whether ``device`` (``cuda`` checked already) puts some of ``missing`` on a GPU."""
+    from baselines.common.device import resolve_device
+    from baselines.registry import get_algorithm
+
+    return any(resolve_device(device, get_algorithm(p.spec.algo).gpu) == "cuda"
+               for p in missing)
 
 
 def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
@@ -359,17 +382,19 @@ def batch_bytes(prepared: PreparedRun, members: int) -> int:
 
 
 def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-               workers: int, where: str = "local", batch: int | None = None) -> None:
+               workers: int, where: str = "local", batch: int | None = None,
+               on_gpu: bool = False) -> None:
     """What a grid would train: its missing runs per env and algorithm, their env steps,
     and the minutes they would take (from the speeds the store's runs recorded), per cell in
     one process and in all on up to ``workers`` ``where`` workers, one run per process or,
-    with ``batch``, in the seed batches ``plan_batches`` makes."""
+    with ``batch``, in the seed batches ``plan_batches`` makes; ``on_gpu``: from the speeds
+    of runs trained on a GPU where there are any."""
     cells: dict[tuple[str, str], list[PreparedRun]] = {}
     for p in missing:
         cells.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
     print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
           f"{len(missing)} to train; nothing is trained or written")
-    rates = measured_rates(store)
+    rates = measured_rates(store, on_gpu)
     for (env_id, algo), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
         steps = sum(p.spec.total_steps for p in runs)
@@ -430,7 +455,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     if dry_run:
         resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
         print_plan(prepared, missing, store, workers or os.cpu_count() or 1,
-                   "local" if executor == "local" else "the Ray cluster's", batch)
+                   "local" if executor == "local" else "the Ray cluster's", batch,
+                   on_gpu=executor == "local" and _gpu_requested(device, missing))
         return GridOutcome([], [], None)
     if executor == "ray":
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
@@ -455,7 +481,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
           f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps on "
           f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
-          f"estimated {estimate_minutes(tasks, store, workers):.0f} min on this machine "
+          f"estimated {estimate_minutes(tasks, store, workers, on_gpu=on_gpu > 0):.0f} min "
+          "on this machine "
           "(from the speeds of the store's runs)", flush=True)
 
     started = time.time()

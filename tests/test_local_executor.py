@@ -100,17 +100,19 @@ def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
 
     from replicate.experiments import estimate_minutes
 
-    def stored(name: str, rate: float, size: int | None) -> None:
+    def stored(name: str, rate: float, size: int | None, algo: str = "sac",
+               device: str = "cpu") -> None:
         run = tmp_path / name
         run.mkdir()
-        (run / "spec.json").write_text(json.dumps({"algo": "sac", "env_id": MOUNTAINCAR}))
+        (run / "spec.json").write_text(json.dumps({"algo": algo, "env_id": MOUNTAINCAR}))
         (run / "curve.csv").write_text("step,return_mean\n0,0\n")
         batch = {"size": size} if size else {}
         (run / "provenance.json").write_text(json.dumps({"env_steps_per_s": rate,
-                                                         "batch": batch}))
+                                                         "batch": batch, "device": device}))
 
     stored("sac__a", 30.0, 3)  # a member of a batch of 3: the process stepped 90/s
     stored("sac__b", 90.0, None)  # one run per process at 90/s
+    stored("ppo__c", 1800.0, None, algo="ppo")
     one = prepare(RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=0, total_steps=5400,
                           eval_interval=1800))
     assert estimate_minutes([one], tmp_path, workers=1) == 1.0
@@ -118,3 +120,16 @@ def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
                              eval_interval=1800))
              for s in range(2)]
     assert estimate_minutes([batch], tmp_path, workers=1) == 2.0
+    # an algorithm never timed steps as the env's slowest timed one: sac's 90/s, not ppo's
+    untimed = prepare(RunSpec(algo="sac-twin-q", env_id=MOUNTAINCAR, seed=0,
+                              total_steps=5400, eval_interval=1800))
+    assert estimate_minutes([untimed], tmp_path, workers=1) == 1.0
+    # a GPU batch's speed says nothing of a CPU process's: a CPU plan ignores it, a GPU one
+    # takes it, and a CPU speed where no run was timed on a GPU (ppo's)
+    stored("sac__gpu", 180.0, 5, device="cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)")
+    assert estimate_minutes([one], tmp_path, workers=1) == 1.0
+    assert estimate_minutes([one], tmp_path, workers=1, on_gpu=True) == 0.1
+    assert estimate_minutes([untimed], tmp_path, workers=1, on_gpu=True) == 0.1
+    ppo = prepare(RunSpec(algo="ppo", env_id=MOUNTAINCAR, seed=0, total_steps=5400,
+                          eval_interval=1800))
+    assert estimate_minutes([ppo], tmp_path, workers=1, on_gpu=True) == 0.05
