@@ -105,8 +105,17 @@ def median_score(scores: np.ndarray) -> float:
 
 
 def interquartile_mean(scores: np.ndarray) -> float:
-    """IQM: the mean of the middle 50% of all run-task scores pooled together."""
-    return float(stats.trim_mean(np.asarray(scores, dtype=float), 0.25, axis=None))
+    """IQM: the mean of the middle 50% of all run-task scores pooled together.
+
+    ``scipy.stats.trim_mean(scores, 0.25, axis=None)``'s arithmetic, step for step (so the
+    same bits), without its per-call dispatch: bootstraps call this about 2,000 times per
+    interval, where scipy's wrapper took 0.7 ms a call."""
+    pooled = np.ravel(np.asarray(scores, dtype=float))
+    if pooled.size == 0:
+        return float("nan")
+    cut = int(0.25 * pooled.size)
+    middle = np.partition(pooled, (cut, pooled.size - cut - 1))[cut:pooled.size - cut]
+    return float(np.mean(middle))
 
 
 def optimality_gap(scores: np.ndarray, gamma: float = 1.0) -> float:

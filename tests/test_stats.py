@@ -63,6 +63,17 @@ def test_iqm_and_profile_hand_computed():
     assert optimality_gap(np.array([[0.5], [1.5]])) == pytest.approx(0.25)
 
 
+def test_iqm_is_scipys_trimmed_mean_to_the_last_bit():
+    from scipy import stats
+
+    from replicate.stats import interquartile_mean
+    rng = np.random.default_rng(3)
+    for runs, tasks in [(1, 1), (2, 1), (3, 2), (5, 3), (7, 4), (10, 1), (50, 5)]:
+        scores = rng.normal(size=(runs, tasks)) * 10 ** rng.uniform(-3, 4)
+        assert interquartile_mean(scores) == float(stats.trim_mean(scores, 0.25, axis=None))
+    assert np.isnan(interquartile_mean(np.zeros((0, 2))))
+
+
 def test_curve_area_and_steps_to_reach_hand_computed():
     from replicate.stats import curve_area, steps_to_reach
 
