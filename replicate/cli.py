@@ -221,6 +221,9 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig4 for quick, "
                            "reports/<profile>/fig4 otherwise)")
+    fig4.add_argument("--dry-run", action="store_true",
+                      help="print the runs that would train, with their env steps and "
+                           "estimated minutes; train and write nothing")
 
     ablate = sub.add_parser(
         "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
@@ -423,8 +426,9 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
                          store=args.store, out_dir=args.out, workers=args.workers,
                          executor=args.executor, address=args.address, device=args.device,
                          gpu_workers=args.gpu_workers, batch=args.batch,
-                         checkpoint_interval=args.checkpoint_interval)
-    print(f"report: {report}")
+                         checkpoint_interval=args.checkpoint_interval, dry_run=args.dry_run)
+    if report is not None:
+        print(f"report: {report}")
     return 0
 
 

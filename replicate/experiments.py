@@ -801,9 +801,12 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                 workers: int | None = None,
                 checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
                 address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None, batch: int | None = None) -> Path:
-    """Train what Fig. 4 lacks and write its report; return the report's path."""
-    from replicate.report import write_figure4_report
+                gpu_workers: int | None = None, batch: int | None = None,
+                dry_run: bool = False) -> Path | None:
+    """Train what Fig. 4 lacks and write its report, never over one that names more runs
+    (``report.write_unless_fewer``); return the report's path (None: nothing written, as
+    with ``dry_run``, which prints what would train)."""
+    from replicate.report import write_figure4_report, write_unless_fewer
 
     chosen = get_profile(profile)
     if waits_for_t2_rule(profile, env_id, "drl-eg"):
@@ -812,7 +815,12 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                            "replicate/experiments.py (README: T2 on MuJoCo)")
     specs = figure4_grid(chosen, env_id, seeds)
     outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address, device,
-                       gpu_workers, batch)
+                       gpu_workers, batch, dry_run=dry_run)
+    if dry_run:
+        return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_figure4_report(outcome, chosen, env_id, out_dir,
-                                guidance_settings(profile, outcome.runs, specs))
+    report, note = write_unless_fewer(out_dir, Path(store), lambda out: write_figure4_report(
+        outcome, chosen, env_id, out, guidance_settings(profile, outcome.runs, specs)))
+    if note:
+        print(note if report is None else f"{out_dir}: {note}")
+    return report

@@ -20,6 +20,17 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     assert 'id="guidance"' in html and summary["guidance"][0]["t2"] == [0.05]
 
 
+def test_fig4_dry_run_plans_the_paired_batches_and_writes_nothing(tmp_path, capsys):
+    store, out = tmp_path / "runs", tmp_path / "fig4"
+    assert main(["fig4", "--profile", "smoke", "--env", "MountainCarContinuous-v0",
+                 "--seeds", "3", "--batch", "3", "--store", str(store), "--out", str(out),
+                 "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert "dry run: 6 runs, 0 already in" in printed
+    assert "6 runs in 2 seed batches" in printed and "seeds 0,1,2" in printed
+    assert not store.exists() and not out.exists()
+
+
 def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, monkeypatch):
     from replicate import demos
 
