@@ -227,8 +227,9 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
                            executor: str = "local", address: str | None = None,
                            device: str = "auto", gpu_workers: int | None = None,
-                           batch: int | None = None) -> Path:
-    """Run (or finish) the sweep and write its report; return the report's path."""
+                           batch: int | None = None, dry_run: bool = False) -> Path | None:
+    """Run (or finish) the sweep and write its report; return the report's path (None with
+    ``dry_run``: print what would train, from one machine, and touch nothing)."""
     import optuna
 
     chosen = get_profile(profile)
@@ -244,6 +245,13 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     if any(t < 0 for t in grid_t2) or any(s < 0 for s in grid_sigma):
         raise HarnessError("thresholds and sigmas must be >= 0", "pass values like 0 0.05 0.2")
     store = Path(store)
+    if dry_run:
+        everything = sac_specs(chosen, env_id, n_seeds) + [
+            spec for threshold in grid_t2 for sigma in grid_sigma
+            for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
+        run_grid(everything, store, workers, checkpoint_interval, executor, address, device,
+                 gpu_workers, batch, dry_run=True)
+        return None
     store.mkdir(parents=True, exist_ok=True)
     shared_study = storage is not None
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"

@@ -259,6 +259,10 @@ def _build_parser() -> argparse.ArgumentParser:
     ablate.add_argument("--out", type=Path, default=None,
                         help="report directory (default: reports/ablate-threshold[-<env>] "
                              "for quick, under reports/<profile>/ otherwise)")
+    ablate.add_argument("--dry-run", action="store_true",
+                        help="print the runs the whole sweep would train (SAC and every "
+                             "point), with their env steps and estimated minutes; train and "
+                             "write nothing")
 
     rlfd = sub.add_parser(
         "compare-rlfd", help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
@@ -442,8 +446,10 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
                                     address=args.address, device=args.device,
                                     gpu_workers=args.gpu_workers, batch=args.batch,
                                     env_id=args.env,
-                                    checkpoint_interval=args.checkpoint_interval)
-    print(f"report: {report}")
+                                    checkpoint_interval=args.checkpoint_interval,
+                                    dry_run=args.dry_run)
+    if report is not None:
+        print(f"report: {report}")
     return 0
 
 

@@ -389,17 +389,27 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     one process and in all on up to ``workers`` ``where`` workers, one run per process or,
     with ``batch``, in the seed batches ``plan_batches`` makes; ``on_gpu``: from the speeds
     of runs trained on a GPU where there are any."""
-    cells: dict[tuple[str, str], list[PreparedRun]] = {}
+    # a sweep's points are cells of their own, named by the settings that tell them apart
+    varying: dict[tuple[str, str], dict[str, set[str]]] = {}
     for p in missing:
-        cells.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
+        values = varying.setdefault((p.spec.env_id, p.spec.algo), {})
+        for key in set(values) | set(p.spec.hyperparameters):
+            values.setdefault(key, set()).add(repr(p.spec.hyperparameters.get(key)))
+    cells: dict[tuple[str, str, str], list[PreparedRun]] = {}
+    for p in missing:
+        values = varying[(p.spec.env_id, p.spec.algo)]
+        settings = " ".join(f"{k}={p.spec.hyperparameters.get(k)}" for k in sorted(values)
+                            if len(values[k]) > 1)
+        cells.setdefault((p.spec.env_id, p.spec.algo, settings), []).append(p)
     print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
           f"{len(missing)} to train; nothing is trained or written")
     rates = measured_rates(store, on_gpu)
-    for (env_id, algo), runs in sorted(cells.items()):
+    for (env_id, algo, settings), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
         steps = sum(p.spec.total_steps for p in runs)
+        point = f"  ({settings})" if settings else ""
         print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
-              f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process")
+              f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process{point}")
     total = sum(p.spec.total_steps for p in missing)
     if where != "local":  # the cluster's size is not known without connecting to it
         print(f"  total {total:,} env steps: about "

@@ -37,6 +37,19 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
     assert json.loads((out / "summary.json").read_text())["rows"] == summary["rows"]
 
 
+def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
+    store, out = tmp_path / "runs", tmp_path / "report"
+    assert main(["ablate-threshold", "--profile", "smoke", "--seeds", "2", "--thresholds", "0",
+                 "0.05", "--sigmas", "0.1", "--store", str(store), "--out", str(out),
+                 "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert "dry run: 6 runs, 0 already in" in printed
+    points = [line for line in printed.splitlines() if " drl-eg " in line]
+    assert len(points) == 2 and "guide_threshold=0.0)" in points[0]
+    assert "guide_threshold=0.05)" in points[1]
+    assert not store.exists() and not out.exists()  # not even the optuna database
+
+
 def test_with_batch_the_whole_sweep_trains_as_one_batch_and_t2_zero_still_equals_sac(tmp_path):
     from replicate.runner import load_run
 
