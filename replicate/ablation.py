@@ -230,8 +230,6 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
                            batch: int | None = None, dry_run: bool = False) -> Path | None:
     """Run (or finish) the sweep and write its report; return the report's path (None with
     ``dry_run``: print what would train, from one machine, and touch nothing)."""
-    import optuna
-
     chosen = get_profile(profile)
     if env_id not in chosen.steps:
         raise HarnessError(f"profile '{profile}' has no budget for {env_id}",
@@ -252,6 +250,8 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
         run_grid(everything, store, workers, checkpoint_interval, executor, address, device,
                  gpu_workers, batch, dry_run=True)
         return None
+    import optuna
+
     store.mkdir(parents=True, exist_ok=True)
     shared_study = storage is not None
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"

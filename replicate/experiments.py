@@ -268,8 +268,11 @@ DEFAULT_STEPS_PER_S = 40.0  # a guess for an algorithm the store has never timed
 def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], float]:
     """Env steps per second of the process that trained each of the store's finished runs
     (a seed batch's members' steps summed), averaged by (algorithm, env): of the runs trained
-    on CPU, or with ``on_gpu`` of those trained on a GPU where an (algorithm, env) has any
-    (a GPU batch steps several times faster than a CPU process, so the two never mix)."""
+    on CPU, or with ``on_gpu`` of those trained on a GPU where an (algorithm, env) has any,
+    else on CPU (a GPU batch steps several times faster than a CPU process, so a CPU plan
+    never takes a GPU's speed)."""
+    from baselines.common.device import device_kind
+
     rates: dict[tuple[bool, str, str], list[float]] = {}
     if store.is_dir():
         for path in store.iterdir():
@@ -278,7 +281,7 @@ def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], f
                 rate = run.provenance.get("env_steps_per_s")
                 if rate:
                     rate *= (run.provenance.get("batch") or {}).get("size", 1)
-                    gpu = str(run.provenance.get("device", "cpu")).startswith("cuda")
+                    gpu = device_kind(str(run.provenance.get("device", "cpu"))) == "cuda"
                     key = (gpu, run.spec["algo"], run.spec["env_id"])
                     rates.setdefault(key, []).append(rate)
     means = {key: sum(values) / len(values) for key, values in rates.items()}
@@ -295,10 +298,10 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
     store (else the same algorithm's slowest env, else the env's slowest algorithm, else a
-    guess; ``rates``: ``measured_rates(store, on_gpu)`` read already). A process is taken to step as fast whatever its batch's size and
-    wherever the runs trained: about so on CPU, where the products dominate; a GPU batch
-    steps faster the larger it is, so rates from large GPU batches make smaller batches and
-    single runs look faster than they are."""
+    guess; ``rates``: ``measured_rates(store, on_gpu)`` read already). A process is taken
+    to step as fast whatever its batch's size: about so on CPU, where the products
+    dominate; a GPU batch steps faster the larger it is, so rates from large GPU batches
+    make smaller batches and single runs look faster than they are."""
     rates = measured_rates(store, on_gpu) if rates is None else rates
     by_algo: dict[str, list[float]] = {}
     by_env: dict[str, list[float]] = {}
@@ -324,13 +327,14 @@ EXECUTORS = ("local", "ray")
 DEFAULT_GPU_BATCH = 64  # members per batch on a GPU when --batch is not given
 
 
-def _gpu_requested(device: str, missing: list[PreparedRun]) -> bool:
-    """Whether ``device`` (``cuda`` checked already) puts some of ``missing`` on a GPU."""
+def _gpu_requested(device: str, missing: list[PreparedRun], gpu_workers: int | None) -> bool:
+    """Whether ``device`` (``cuda`` checked already) puts some of ``missing`` on a GPU:
+    one of them has a GPU path and ``gpu_workers`` leaves a worker on the GPU."""
     from baselines.common.device import resolve_device
     from baselines.registry import get_algorithm
 
-    return any(resolve_device(device, get_algorithm(p.spec.algo).gpu) == "cuda"
-               for p in missing)
+    return gpu_workers != 0 and any(
+        resolve_device(device, get_algorithm(p.spec.algo).gpu) == "cuda" for p in missing)
 
 
 def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
@@ -388,19 +392,21 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     and the minutes they would take (from the speeds the store's runs recorded), per cell in
     one process and in all on up to ``workers`` ``where`` workers, one run per process or,
     with ``batch``, in the seed batches ``plan_batches`` makes; ``on_gpu``: from the speeds
-    of runs trained on a GPU where there are any."""
+    of runs trained on a GPU where there are any, and without ``batch`` in batches of
+    ``DEFAULT_GPU_BATCH`` (a GPU grid's batches are as large as its memory allows)."""
+    groups: dict[tuple[str, str], list[PreparedRun]] = {}
+    for p in missing:
+        groups.setdefault((p.spec.env_id, p.spec.algo), []).append(p)
     # a sweep's points are cells of their own, named by the settings that tell them apart
-    varying: dict[tuple[str, str], dict[str, set[str]]] = {}
-    for p in missing:
-        values = varying.setdefault((p.spec.env_id, p.spec.algo), {})
-        for key in set(values) | set(p.spec.hyperparameters):
-            values.setdefault(key, set()).add(repr(p.spec.hyperparameters.get(key)))
     cells: dict[tuple[str, str, str], list[PreparedRun]] = {}
-    for p in missing:
-        values = varying[(p.spec.env_id, p.spec.algo)]
-        settings = " ".join(f"{k}={p.spec.hyperparameters.get(k)}" for k in sorted(values)
-                            if len(values[k]) > 1)
-        cells.setdefault((p.spec.env_id, p.spec.algo, settings), []).append(p)
+    for (env_id, algo), runs in groups.items():
+        keys = set().union(*(p.spec.hyperparameters for p in runs))
+        varying = sorted(k for k in keys
+                         if len({repr(p.spec.hyperparameters.get(k)) for p in runs}) > 1)
+        for p in runs:
+            settings = " ".join(f"{k}={p.spec.hyperparameters.get(k, 'default')}"
+                                for k in varying)
+            cells.setdefault((env_id, algo, settings), []).append(p)
     print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
           f"{len(missing)} to train; nothing is trained or written")
     rates = measured_rates(store, on_gpu)
@@ -416,7 +422,7 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
               f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
               f"{where} CPUs")
         return
-    tasks = plan_batches(missing, batch)
+    tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch)
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
     longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)
@@ -466,7 +472,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
         print_plan(prepared, missing, store, workers or os.cpu_count() or 1,
                    "local" if executor == "local" else "the Ray cluster's", batch,
-                   on_gpu=executor == "local" and _gpu_requested(device, missing))
+                   on_gpu=executor == "local" and _gpu_requested(device, missing,
+                                                                 gpu_workers))
         return GridOutcome([], [], None)
     if executor == "ray":
         return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
@@ -813,9 +820,10 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
                 address: str | None = None, device: str = "auto",
                 gpu_workers: int | None = None, batch: int | None = None,
                 dry_run: bool = False) -> Path | None:
-    """Train what Fig. 4 lacks and write its report, never over one that names more runs
-    (``report.write_unless_fewer``); return the report's path (None: nothing written, as
-    with ``dry_run``, which prints what would train)."""
+    """Train what Fig. 4 lacks and write its report; one that names runs the store lacks is
+    replaced only by one naming as many (``report.write_unless_fewer``). Returns the
+    report's path (None: nothing written, as with ``dry_run``, which prints what would
+    train)."""
     from replicate.report import write_figure4_report, write_unless_fewer
 
     chosen = get_profile(profile)

@@ -111,7 +111,7 @@ def interquartile_mean(scores: np.ndarray) -> float:
     same bits), without its per-call dispatch: bootstraps call this about 2,000 times per
     interval, where scipy's wrapper took 0.7 ms a call."""
     pooled = np.ravel(np.asarray(scores, dtype=float))
-    if pooled.size == 0:
+    if pooled.size == 0 or np.isnan(pooled).any():  # scipy's nan_policy="propagate"
         return float("nan")
     cut = int(0.25 * pooled.size)
     middle = np.partition(pooled, (cut, pooled.size - cut - 1))[cut:pooled.size - cut]

@@ -50,6 +50,20 @@ def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
     assert not store.exists() and not out.exists()  # not even the optuna database
 
 
+def test_a_plan_tells_points_apart_whatever_order_their_runs_come_in(tmp_path, capsys):
+    from replicate.experiments import print_plan
+    from replicate.runner import prepare
+    from replicate.spec import RunSpec
+
+    default = prepare(RunSpec("drl-eg", "MountainCarContinuous-v0", 0, 400, 200, 1, {}))
+    point = prepare(RunSpec("drl-eg", "MountainCarContinuous-v0", 1, 400, 200, 1,
+                            {"guide_threshold": 0.2}))
+    for runs in ([default, point], [point, default]):
+        print_plan(runs, runs, tmp_path, workers=1)
+        lines = [line for line in capsys.readouterr().out.splitlines() if " drl-eg " in line]
+        assert len(lines) == 2 and sorted(line[-5:] for line in lines) == ["=0.2)", "ault)"]
+
+
 def test_with_batch_the_whole_sweep_trains_as_one_batch_and_t2_zero_still_equals_sac(tmp_path):
     from replicate.runner import load_run
 

@@ -72,6 +72,11 @@ def test_iqm_is_scipys_trimmed_mean_to_the_last_bit():
         scores = rng.normal(size=(runs, tasks)) * 10 ** rng.uniform(-3, 4)
         assert interquartile_mean(scores) == float(stats.trim_mean(scores, 0.25, axis=None))
     assert np.isnan(interquartile_mean(np.zeros((0, 2))))
+    for where in (0, 7):  # a NaN anywhere, even among the cut quarters, makes it NaN
+        scores = np.arange(8.0)
+        scores[where] = np.nan
+        assert np.isnan(interquartile_mean(scores))
+        assert np.isnan(stats.trim_mean(scores, 0.25, axis=None))
 
 
 def test_curve_area_and_steps_to_reach_hand_computed():
