@@ -19,7 +19,10 @@
 set -u
 logs=${1:?usage: benchmarks/gpu_loan_jobs.sh LOGDIR [--dry-run]} dry=${2:-}
 python=${PYTHON:-python3}
-env_id=${GMM_ENV:-Hopper-v5}  # another env where this machine's CPU batches train Hopper's
+# Hopper's and Walker2d's seeds 0-2 are in runs/ (CPU batches), so there the grid trains
+# seeds 3-4 (a batch of 2); HalfCheetah's and Ant's 0-2 train as CPU batches on the
+# sessions' machine, resumed from its checkpoints: pick an env those do not cover
+env_id=${GMM_ENV:-Hopper-v5}
 trap 'kill $(jobs -p) 2>/dev/null' TERM
 # shellcheck disable=SC2086  # $dry splits on purpose
 {
