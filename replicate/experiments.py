@@ -312,8 +312,9 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
     for task in tasks:
         members = task if isinstance(task, list) else [task]
         p = members[0]
-        # an untimed algorithm (a new one, a variant) costs most like the env's slowest
-        # timed one: the env's step and network sizes dominate, and slow errs on the safe side
+        # untimed here: the algorithm's slowest other env; a new algorithm costs most like
+        # the env's slowest timed one (the env's step and network sizes dominate; slow errs
+        # on the safe side)
         rate = (rates.get((p.spec.algo, p.spec.env_id))
                 or min(by_algo.get(p.spec.algo) or by_env.get(p.spec.env_id)
                        or [DEFAULT_STEPS_PER_S]))
