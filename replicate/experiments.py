@@ -596,8 +596,6 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
     given; cells that wait for the MuJoCo T2 rule never), then ``write(outcome, out_dir)``
     its report from every run of the grid in the store, never over a report that names more
     runs (``report.write_unless_fewer``). Returns the report (None: nothing written)."""
-    from replicate.report import write_unless_fewer
-
     selected = select_cells(specs, algos, envs)
     specs, skipped = without_waiting(specs, skipped, profile)
     chosen = [s for s in selected if s in specs]
@@ -612,15 +610,24 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
     if dry_run:
         return None
     outcome.skipped = skipped + outcome.skipped
-    report, note = write_unless_fewer(Path(out_dir), Path(store),
-                                      lambda out: write(outcome, out))
-    if note:
-        print(note if report is None else f"{out_dir}: {note}")
+    report = write_saying_why(Path(out_dir), Path(store), lambda out: write(outcome, out))
     if outcome.failed:
         where = (f"the report at {report} lists them" if report is not None else
                  f"e.g. {outcome.failed[0][0]}: {outcome.failed[0][1]}")
         raise HarnessError(f"{len(outcome.failed)} run(s) failed; {where}",
                            "read the reasons, fix, and run the same command")
+    return report
+
+
+def write_saying_why(out_dir: Path, store: Path, build: Callable[[Path], Path | None]
+                     ) -> Path | None:
+    """``report.write_unless_fewer``, printing its line when some of the old report's runs
+    were missing; returns the index written (None: nothing written)."""
+    from replicate.report import write_unless_fewer
+
+    report, note = write_unless_fewer(out_dir, store, build)
+    if note:
+        print(note if report is None else f"{out_dir}: {note}")
     return report
 
 
@@ -825,7 +832,7 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
     replaced only by one naming as many (``report.write_unless_fewer``). Returns the
     report's path (None: nothing written, as with ``dry_run``, which prints what would
     train)."""
-    from replicate.report import write_figure4_report, write_unless_fewer
+    from replicate.report import write_figure4_report
 
     chosen = get_profile(profile)
     if waits_for_t2_rule(profile, env_id, "drl-eg"):
@@ -838,8 +845,5 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
     if dry_run:
         return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    report, note = write_unless_fewer(out_dir, Path(store), lambda out: write_figure4_report(
+    return write_saying_why(out_dir, Path(store), lambda out: write_figure4_report(
         outcome, chosen, env_id, out, guidance_settings(profile, outcome.runs, specs)))
-    if note:
-        print(note if report is None else f"{out_dir}: {note}")
-    return report
