@@ -380,6 +380,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     context = {
         "title": title, "profile": profile, "env_id": env_id, "rows": rows, "paired": paired,
         "claim": claim, "confidence": CONFIDENCE, "failed": outcome.failed,
+        "missing": outcome.skipped,
         "figure_png_b64": base64.b64encode(paired_curves_png(panels, title)).decode()
         if panels else None,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -395,6 +396,8 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
                "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
                "guidance": guidance or [],
+               "missing": [{"env_id": e, "algo": a, "reason": why}
+                           for e, a, why in outcome.skipped],
                "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed]}
     _atomic_write(out_dir / "summary.json",
                   summary_bytes(summary))

@@ -78,6 +78,17 @@ def test_claim_5_pairs_seeds():
     assert claim["parts"][1]["seeds_meeting"] == 1  # seed 0: SAC stuck below half
 
 
+def test_claim_5_without_a_stuck_seed_needs_the_papers_four_pairs_to_say_not_reproduced():
+    drl = [3000, 3100, 2900, 3050]
+    sac = [2900, 2800, 2700, 2950]  # SAC never below half of DRL-EG
+    four = {(ANT, "drl-eg"): group(ANT, "drl-eg", drl), (ANT, "sac"): group(ANT, "sac", sac)}
+    assert claim_5(four, {}, rng())["parts"][1]["verdict"] == "not reproduced"
+    three = {(ANT, "drl-eg"): group(ANT, "drl-eg", drl[:3]), (ANT, "sac"): group(ANT, "sac", sac[:3])}
+    claim = claim_5(three, {}, rng())
+    assert claim["parts"][1]["verdict"] == "inconclusive (3 of the paper's 4 paired seeds)"
+    assert claim["verdict"] != "not reproduced"
+
+
 def test_missing_runs_and_meaningless_profiles_are_not_judged():
     ledger = judge_claims({}, {}, 0, meaningful=True)
     assert [c["id"] for c in ledger] == [1, 2, 3, 4, 5]

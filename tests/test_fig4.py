@@ -18,6 +18,13 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     html = (out / "index.html").read_text()
     assert "data:image/png;base64," in html and 'id="smoke-warning"' in html
     assert 'id="guidance"' in html and summary["guidance"][0]["t2"] == [0.05]
+    # two of the paper's four pairs: the report says which seeds it lacks and how to train them
+    missing = {(m["algo"], m["reason"]) for m in summary["missing"]}
+    assert {algo for algo, _ in missing} == {"sac", "drl-eg"}
+    assert all(why.startswith("seeds 2, 3 not in the store yet") and "replicate-fig4" in why
+               for _, why in missing)
+    assert 'id="incomplete"' in html and "Incomplete: 2 paired" in html
+    assert "with 2 pairs the smallest possible two-sided p is 0.5" in html
 
 
 def test_fig4_dry_run_plans_the_paired_batches_and_writes_nothing(tmp_path, capsys):
