@@ -2,13 +2,14 @@
 # The jobs of one whole GPU loan (about 11 minutes of training), for
 # benchmarks/device_detached.sh. A checkpoint cannot come back (over the 16 MiB a returned
 # file may have), so only runs that finish inside the loan count. Every grid trains only
-# what the store lacks; each job's log is LOGDIR/<job>.log; the simulators and optuna must
-# be installed there (gpu_carry.sh).
-# On the GPU, alone: the reduced Fig. 3's DRL-EG-GMM on Hopper-v5 (or $GMM_ENV) as one seed
-# batch of 5 (200k steps). Whether a 200k MuJoCo batch fits a loan is what this measures:
-# the bench's H200 rates for DRL-EG (not GMM) with nothing beside it give about 8-10
-# minutes, the rates of loans whose batches shared the GPU and the cores about 25; its log's
-# progress bar gives the rate either way. The cores stay free for the batch's env workers.
+# what the store lacks; the job's log is LOGDIR/fig3-batch.log; the simulators and optuna
+# must be installed there (gpu_carry.sh).
+# On the GPU, alone: one reduced Fig. 3 cell at 200k steps as one seed batch of the seeds
+# the store lacks, the first open cell of CELLS (claim 2's SAC and DRL-EG on Hopper and
+# HalfCheetah first: seeds 3-4 make their paired seeds 5). A 200k MuJoCo batch alone fits a
+# loan: DRL-EG-GMM's Hopper seeds 3-4 (a batch of 2) trained in 497 s on a lent H200
+# (2026-11-27), where batches that shared the GPU and the cores ran at a rate that would
+# need about 25 minutes, so one cell per loan. The cores stay free for the env workers.
 # (CPU-only grids, such as the quick threshold ablation, train on the sessions' own machine:
 # its report checks T2 = 0 against SAC runs bit for bit, and those were trained here.)
 # Earlier lists trained the comparison's sparse cells (RLPD batches of 5 in 310-316 s on an
@@ -19,17 +20,27 @@
 set -u
 logs=${1:?usage: benchmarks/gpu_loan_jobs.sh LOGDIR [--dry-run]} dry=${2:-}
 python=${PYTHON:-python3}
-# Hopper's and Walker2d's seeds 0-2 are in runs/ (CPU batches), so there the grid trains
-# seeds 3-4 (a batch of 2); HalfCheetah's and Ant's 0-2 train as CPU batches on the
-# sessions' machine, resumed from its checkpoints: pick an env those do not cover
-env_id=${GMM_ENV:-Hopper-v5}
-trap 'kill $(jobs -p) 2>/dev/null' TERM
-# shellcheck disable=SC2086  # $dry splits on purpose
-{
-    "$python" -m replicate fig3 --profile reduced --algos drl-eg-gmm --envs "$env_id" \
-        --batch 5 --workers 1 --device cuda --checkpoint-interval 0 --out "$(mktemp -d)" \
-        $dry > "$logs/fig3-gmm-batch.log" 2>&1 &
+device=${DEVICE:-cuda}
+cells=${CELLS:-"sac:Hopper-v5 drl-eg:Hopper-v5 sac:HalfCheetah-v5 drl-eg:HalfCheetah-v5
+sac:Walker2d-v5 drl-eg:Walker2d-v5 sac:Ant-v5 drl-eg:Ant-v5 drl-eg-gmm:Walker2d-v5
+drl-eg-gmm:HalfCheetah-v5 drl-eg-gmm:Ant-v5"}
+grid() {  # grid ALGO ENV [extra args]: the reduced Fig. 3 cell, as one batch on $device
+    local algo=$1 env_id=$2; shift 2
+    "$python" -m replicate fig3 --profile reduced --algos "$algo" --envs "$env_id" \
+        --batch 5 --workers 1 --device "$device" --checkpoint-interval 0 \
+        --out "$(mktemp -d)" "$@"
 }
-status=0
-for job in $(jobs -p); do wait "$job" || status=$?; done
-exit $status
+for cell in $cells; do
+    algo=${cell%%:*} env_id=${cell#*:}
+    plan=$(grid "$algo" "$env_id" --dry-run 2>&1) || { echo "$plan" >&2; exit 2; }
+    if ! grep -q ' 0 to train' <<< "$plan"; then
+        echo "open cell: $algo on $env_id"
+        echo "$plan"
+        if [ "$dry" = --dry-run ]; then exit 0; fi
+        trap 'kill $(jobs -p) 2>/dev/null' TERM
+        grid "$algo" "$env_id" > "$logs/fig3-batch.log" 2>&1 &
+        wait $!
+        exit $?
+    fi
+done
+echo "every cell of CELLS is whole in the store; nothing to train"
