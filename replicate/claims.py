@@ -114,8 +114,12 @@ def _claim(claim_id: int, title: str, paper: str, parts: list[dict], groups: lis
         verdict = combine([p["verdict"] for p in parts])
     return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict, "parts": parts,
             "effect": effect,
-            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({len(g.seeds)} seeds)"
+            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({_seeds(len(g.seeds))})"
                                   for g in groups})}
+
+
+def _seeds(n: int, kind: str = "") -> str:
+    return f"{n} {kind}seed{'' if n == 1 else 's'}"
 
 
 def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> list[str]:
@@ -252,8 +256,10 @@ def claim_5(groups, demo_returns, streams) -> dict[str, Any]:
     a = np.array([drl.finals[drl.seeds.index(s)] for s in common])
     b = np.array([sac.finals[sac.seeds.index(s)] for s in common])
     estimate, p_value = paired_difference(a, b, streams("Ant: paired DRL-EG minus SAC"))
-    part = _check(f"Ant, {len(common)} paired seeds: DRL-EG minus SAC above 0 "
-                  f"(Wilcoxon signed-rank p = {p_value:.3g})", estimate.low, estimate.high,
+    wilcoxon = ("no Wilcoxon signed-rank p: fewer than 2 pairs or no difference"
+                if np.isnan(p_value) else f"Wilcoxon signed-rank p = {p_value:.3g}")
+    part = _check(f"Ant, {_seeds(len(common), 'paired ')}: DRL-EG minus SAC above 0 "
+                  f"({wilcoxon})", estimate.low, estimate.high,
                   estimate.value, (0.0, np.inf), int((a > b).sum()), len(common))
     escaped = int(((b < 0.5 * a) & (a > 0)).sum())
     # no such seed among fewer pairs than the paper showed cannot say it would not appear

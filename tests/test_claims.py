@@ -87,6 +87,12 @@ def test_claim_5_without_a_stuck_seed_needs_the_papers_four_pairs_to_say_not_rep
     claim = claim_5(three, {}, rng())
     assert claim["parts"][1]["verdict"] == "inconclusive (3 of the paper's 4 paired seeds)"
     assert claim["verdict"] != "not reproduced"
+    one = {(ANT, "drl-eg"): group(ANT, "drl-eg", drl[:1]), (ANT, "sac"): group(ANT, "sac", sac[:1])}
+    claim = claim_5(one, {}, rng())
+    assert claim["parts"][0]["what"] == ("Ant, 1 paired seed: DRL-EG minus SAC above 0 (no "
+                                         "Wilcoxon signed-rank p: fewer than 2 pairs or no "
+                                         "difference)")
+    assert claim["algorithms"] == ["DRL-EG on Ant-v5 (1 seed)", "SAC on Ant-v5 (1 seed)"]
 
 
 def test_missing_runs_and_meaningless_profiles_are_not_judged():
