@@ -14,31 +14,38 @@
 # its report checks T2 = 0 against SAC runs bit for bit, and those were trained here.)
 # Earlier lists trained the comparison's sparse cells (RLPD batches of 5 in 310-316 s on an
 # H200, two sharing it; JSRL 643-661 s a run on its cores); all of them are in runs/.
+# `--dry-run` names the cell it would train and its plan, on any machine (DEVICE=cpu
+# trains on CPU instead, for a check).
 # usage (on the lent machine, after gpu_carry.sh's install line):
 #   benchmarks/device_detached.sh start /tmp/sitting benchmarks/gpu_loan_jobs.sh /tmp/sitting
 #   benchmarks/device_detached.sh wait /tmp/sitting $OUT 570     (again while "running")
 set -u
-logs=${1:?usage: benchmarks/gpu_loan_jobs.sh LOGDIR [--dry-run]} dry=${2:-}
+usage="usage: benchmarks/gpu_loan_jobs.sh LOGDIR [--dry-run]"
+logs=${1:?$usage} dry=${2:-}
+case $dry in ''|--dry-run) ;; *) echo "$usage" >&2; exit 2 ;; esac
 python=${PYTHON:-python3}
 device=${DEVICE:-cuda}
 cells=${CELLS:-"sac:Hopper-v5 drl-eg:Hopper-v5 sac:HalfCheetah-v5 drl-eg:HalfCheetah-v5
 sac:Walker2d-v5 drl-eg:Walker2d-v5 sac:Ant-v5 drl-eg:Ant-v5 drl-eg-gmm:Walker2d-v5
 drl-eg-gmm:HalfCheetah-v5 drl-eg-gmm:Ant-v5"}
-grid() {  # grid ALGO ENV [extra args]: the reduced Fig. 3 cell, as one batch on $device
-    local algo=$1 env_id=$2; shift 2
-    "$python" -m replicate fig3 --profile reduced --algos "$algo" --envs "$env_id" \
-        --batch 5 --workers 1 --device "$device" --checkpoint-interval 0 \
+grid() {  # grid ALGO ENV DEVICE [extra args]: the reduced Fig. 3 cell as one seed batch
+    local algo=$1 env_id=$2 on=$3; shift 3
+    # exec: the TERM trap below then reaches python itself, not a wrapping shell
+    exec "$python" -m replicate fig3 --profile reduced --algos "$algo" --envs "$env_id" \
+        --batch 5 --workers 1 --device "$on" --checkpoint-interval 0 \
         --out "$(mktemp -d)" "$@"
 }
 for cell in $cells; do
     algo=${cell%%:*} env_id=${cell#*:}
-    plan=$(grid "$algo" "$env_id" --dry-run 2>&1) || { echo "$plan" >&2; exit 2; }
+    # what the store lacks does not depend on the device: plan on CPU, so that a
+    # machine without a GPU can check the choice too
+    plan=$(grid "$algo" "$env_id" cpu --dry-run 2>&1) || { echo "$plan" >&2; exit 2; }
     if ! grep -q ' 0 to train' <<< "$plan"; then
         echo "open cell: $algo on $env_id"
         echo "$plan"
         if [ "$dry" = --dry-run ]; then exit 0; fi
         trap 'kill $(jobs -p) 2>/dev/null' TERM
-        grid "$algo" "$env_id" > "$logs/fig3-batch.log" 2>&1 &
+        grid "$algo" "$env_id" "$device" > "$logs/fig3-batch.log" 2>&1 &
         wait $!
         exit $?
     fi
