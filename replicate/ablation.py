@@ -24,7 +24,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
@@ -37,6 +36,7 @@ from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
 from replicate.stats import bootstrap_mean, stratified_bootstrap_ci
+from replicate.templating import report_environment
 
 ALWAYS = ALWAYS_GUIDE
 THRESHOLDS: dict[str, list[float]] = {  # MountainCar's grid, absolute values
@@ -500,9 +500,7 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
                             | {provenance.git_revision()}),
         "t2_rule": t2_rule, "rule_in_force": experiments.MUJOCO_T2_RULE,
     }
-    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                                     autoescape=jinja2.select_autoescape(["html"]),
-                                     undefined=jinja2.StrictUndefined)
+    environment = report_environment()
     html = environment.get_template("ablation.html").render(**context)
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())

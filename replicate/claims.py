@@ -18,6 +18,7 @@ import numpy as np
 
 from replicate.stats import (CONFIDENCE, bootstrap_mean, bootstrap_mean_difference,
                              curve_area, paired_difference, substream, welch_test)
+from replicate.templating import count_seeds
 
 # A check's bootstrap stream, named by its label: no check's interval depends on another's.
 Streams = Callable[[str], np.random.Generator]
@@ -114,12 +115,8 @@ def _claim(claim_id: int, title: str, paper: str, parts: list[dict], groups: lis
         verdict = combine([p["verdict"] for p in parts])
     return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict, "parts": parts,
             "effect": effect,
-            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({_seeds(len(g.seeds))})"
+            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({count_seeds(len(g.seeds))})"
                                   for g in groups})}
-
-
-def _seeds(n: int, kind: str = "") -> str:
-    return f"{n} {kind}seed{'' if n == 1 else 's'}"
 
 
 def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> list[str]:
@@ -258,7 +255,7 @@ def claim_5(groups, demo_returns, streams) -> dict[str, Any]:
     estimate, p_value = paired_difference(a, b, streams("Ant: paired DRL-EG minus SAC"))
     wilcoxon = ("no Wilcoxon signed-rank p: fewer than 2 pairs or no difference"
                 if np.isnan(p_value) else f"Wilcoxon signed-rank p = {p_value:.3g}")
-    part = _check(f"Ant, {_seeds(len(common), 'paired ')}: DRL-EG minus SAC above 0 "
+    part = _check(f"Ant, {count_seeds(len(common), 'paired ')}: DRL-EG minus SAC above 0 "
                   f"({wilcoxon})", estimate.low, estimate.high,
                   estimate.value, (0.0, np.inf), int((a > b).sum()), len(common))
     escaped = int(((b < 0.5 * a) & (a > 0)).sum())

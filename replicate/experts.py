@@ -204,7 +204,7 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
     work = work_dir_for(env_id, root)
     if (work / "checkpoint.pt").is_file():
         raise HarnessError(f"{work} holds a one-run expert in training",
-                           f"finish or remove it, or pass another --root")
+                           "finish or remove it, or pass another --root")
     check_device(device)
     resolved_device = resolve_device(device, True)
     workers = env_workers if env_workers is not None else (

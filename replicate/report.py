@@ -13,7 +13,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
-import jinja2
 import numpy as np
 
 from replicate import provenance
@@ -22,6 +21,7 @@ from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
 from replicate.claims import Group, judge_claims
 from replicate.published import published_points
+from replicate.templating import report_environment
 from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
                              probability_of_improvement, score_profile, stratified_bootstrap_ci,
                              substream)
@@ -313,9 +313,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "efficiency": efficiency, "published": published, "reach_fraction": REACH_FRACTION,
         "guidance": guidance or [],
     }
-    env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                             autoescape=jinja2.select_autoescape(["html"]),
-                             undefined=jinja2.StrictUndefined)
+    env = report_environment()
     html = env.get_template("fig3.html").render(**context)
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
@@ -388,9 +386,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
         "guidance": guidance or [],
     }
-    env = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                             autoescape=jinja2.select_autoescape(["html"]),
-                             undefined=jinja2.StrictUndefined)
+    env = report_environment()
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
     summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,

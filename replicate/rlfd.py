@@ -20,7 +20,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import jinja2
 import numpy as np
 
 from replicate.errors import HarnessError
@@ -30,6 +29,7 @@ from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
+from replicate.templating import report_environment
 from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
                              score_profile, stratified_bootstrap_ci, substream)
 
@@ -251,9 +251,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
-    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                                     autoescape=jinja2.select_autoescape(["html"]),
-                                     undefined=jinja2.StrictUndefined)
+    environment = report_environment()
     html = environment.get_template("rlfd.html").render(**context)
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())

@@ -7,11 +7,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import jinja2
 
 from envs import ENV_SPECS, make_env
 from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError
+from replicate.templating import report_environment
 
 
 # The demonstrations' mean return that published SAC reaches at 1M steps (issue 14's
@@ -55,9 +55,7 @@ def table1_rows() -> list[dict[str, Any]]:
 
 def write_table1_report(out_dir: Path) -> Path:
     """Write ``out_dir/index.html`` (self-contained)."""
-    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                                     autoescape=jinja2.select_autoescape(["html"]),
-                                     undefined=jinja2.StrictUndefined)
+    environment = report_environment()
     html = environment.get_template("table1.html").render(
         title="Table 1 replication: environments and demonstrations", rows=table1_rows(),
         generated=datetime.now(timezone.utc).isoformat(timespec="seconds"))
