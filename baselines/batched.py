@@ -35,11 +35,11 @@ from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkpoint,
                                          save_checkpoint)
 from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.device import GraphedStep, make_adam
+from baselines.common.device import GraphedStep
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
 from baselines.common.stacked import (StackedMLP, StackedNormMLP, StackedPolicy, StackedReplay,
                                       StackedSymmetricReplay, critic_ensembles, critic_pairs,
-                                      pair_critics)
+                                      member_adam, pair_critics)
 from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
                               fit_neural_guider, functional_discriminator, functional_guider,
                               gmm_discriminator)
@@ -204,9 +204,9 @@ class StackedSACAgent(StackedActor):
         self.policy = StackedPolicy(StackedMLP.stack([a.policy.trunk for a in agents]),
                                     first.action_scale, first.action_bias).to(self.device)
         lr = config.learning_rate
-        self.q_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
-        self.v_optimizer = make_adam(self.v.parameters(), lr, self.device, True)
-        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
+        self.q_optimizer = member_adam(self.critics.parameters(), lr, self.device)
+        self.v_optimizer = member_adam(self.v.parameters(), lr, self.device)
+        self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
         self.generators = [a.noise for a in agents]
         self._setup_acting(cuda_graphs)
         self._setup_updates(config.batch_size, cuda_graphs)
@@ -270,9 +270,9 @@ class StackedTwinQAgent(StackedActor):
         self.log_alpha.requires_grad_(True)
         self.target_entropy = agents[0].target_entropy
         lr = config.learning_rate
-        self.critic_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
-        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
-        self.alpha_optimizer = make_adam([self.log_alpha], lr, self.device, True)
+        self.critic_optimizer = member_adam(self.critics.parameters(), lr, self.device)
+        self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
+        self.alpha_optimizer = member_adam([self.log_alpha], lr, self.device)
         self.generators = [a.noise for a in agents]
         self._setup_acting(cuda_graphs)
         self._setup_updates(config.batch_size, cuda_graphs)

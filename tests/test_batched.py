@@ -433,3 +433,39 @@ def test_a_batch_records_the_training_returns_of_the_one_run_path(tmp_path):
         one_run = [p.train_return for p in points]
         assert np.isnan(one_run[0]) and np.isfinite(one_run[1:]).all()
         np.testing.assert_allclose(run.curve["train_return"], one_run, rtol=1e-5)
+
+
+def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8():
+    """Bitwise, weights and Adam moments: on the CPU neither the products nor Adam may round
+    a member's numbers by how many members are stacked (the fused Adam's tail did, on AVX2)."""
+    obs_dim, act_dim, rows = 2, 1, 32
+    config = SACConfig(hidden_sizes=(32, 32), batch_size=rows)
+
+    def stack(seeds):
+        return StackedSACAgent([SACAgent(obs_dim, act_dim, -np.ones(act_dim), np.ones(act_dim),
+                                         config, seed=s, cuda_graphs=False) for s in seeds],
+                               config, "cpu")
+
+    small, large = stack((0, 1)), stack((0, 1) * 4)
+    generator = torch.Generator().manual_seed(7)
+    for _ in range(5):
+        batch = Batch(torch.randn(2, rows, obs_dim, generator=generator),
+                      torch.rand(2, rows, act_dim, generator=generator) * 2 - 1,
+                      torch.randn(2, rows, generator=generator),
+                      torch.randn(2, rows, obs_dim, generator=generator),
+                      (torch.rand(2, rows, generator=generator) < 0.2).float())
+        noise = torch.randn(2, rows, act_dim, generator=generator)
+        small._gradient_step(batch, noise)
+        large._gradient_step(Batch(*[t.repeat(4, *[1] * (t.dim() - 1))
+                                     for t in vars(batch).values()]), noise.repeat(4, 1, 1))
+    for name in ("critics", "v", "v_target", "policy"):
+        per = 4 if name == "critics" else 2  # the critics stack two per member
+        for one, many in zip(getattr(small, name).parameters(),
+                             getattr(large, name).parameters()):
+            assert torch.equal(one, many[:per]), name
+    for optimizer in ("q_optimizer", "v_optimizer", "policy_optimizer"):
+        one, many = getattr(small, optimizer), getattr(large, optimizer)
+        for p, q in zip([p for g in one.param_groups for p in g["params"]],
+                        [q for g in many.param_groups for q in g["params"]]):
+            for moment in ("exp_avg", "exp_avg_sq"):
+                assert torch.equal(one.state[p][moment], many.state[q][moment][:p.shape[0]])

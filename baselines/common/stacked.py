@@ -9,7 +9,7 @@ statistic is shared across members.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import torch
@@ -17,7 +17,33 @@ from torch import nn
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
+from baselines.common.device import make_adam
 from baselines.common.networks import TanhGaussianPolicy
+
+
+# Floats: a multiple of every CPU vector width, with room for an unrolled loop.
+WHOLE_VECTORS = 64
+
+
+def member_adam(params: Iterable[torch.Tensor], lr: float, device: torch.device
+                ) -> torch.optim.Adam:
+    """Adam over stacked tensors (members first) in which member k's update does not depend
+    on how many members are stacked.
+
+    The CPU's fused Adam updates a tensor's last elements, those short of a whole vector,
+    with scalar code that rounds differently from its vector code (seen on an AMD EPYC with
+    AVX2), so a member whose slice ends in that tail would change with the batch size. A
+    tensor whose slice per member is not whole vectors (an output layer's bias, say) takes
+    the unfused Adam there, which rounds alike element by element.
+    """
+    params = list(params)
+    if device.type != "cpu":
+        return make_adam(params, lr, device, True)
+    whole = [p for p in params if (p.numel() // p.shape[0]) % WHOLE_VECTORS == 0]
+    rest = [p for p in params if (p.numel() // p.shape[0]) % WHOLE_VECTORS != 0]
+    groups = ([{"params": whole}] if whole else []) \
+        + ([{"params": rest, "fused": False, "foreach": False}] if rest else [])
+    return torch.optim.Adam(groups, lr=lr, fused=True)
 
 
 class StackedMLP(nn.Module):
