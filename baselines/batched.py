@@ -576,7 +576,15 @@ def agent_state(agent: StackedActor) -> dict[str, Any]:
 
 def load_agent_state(agent: StackedActor, state: dict[str, Any]) -> None:
     for name in agent.MODULES:
-        getattr(agent, name).load_state_dict(state[name])
+        try:
+            getattr(agent, name).load_state_dict(state[name])
+        except ValueError as exc:
+            if "parameter groups" not in str(exc):
+                raise
+            raise ValueError(
+                f"this batch checkpoint's {name} predates the CPU batches' two Adam groups "
+                "(README, Seed batches), so it cannot resume; delete the batch's "
+                "checkpoint directory (.batch-* in the run store) to start it over") from None
     if "log_alpha" in state:
         with torch.no_grad():
             agent.log_alpha.copy_(state["log_alpha"])

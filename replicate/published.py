@@ -14,6 +14,8 @@ from io import StringIO
 
 import pandas as pd
 
+from replicate.templating import count_seeds
+
 ENV_NAMES = {"Hopper-v5": "Hopper", "Walker2d-v5": "Walker2d", "HalfCheetah-v5": "HalfCheetah",
              "Ant-v5": "Ant"}
 ENV_VERSIONS = {"tianshou": "-v3", "sb3-zoo": "-v3", "cleanrl": "-v2"}
@@ -30,7 +32,7 @@ class PublishedPoint:
 
     @property
     def label(self) -> str:
-        seeds = f", {self.seeds} seed{'s' if self.seeds != 1 else ''}" if self.seeds else ""
+        seeds = f", {count_seeds(self.seeds)}" if self.seeds else ""
         return f"{self.source} SAC ({ENV_NAMES[self.env_id]}{ENV_VERSIONS[self.source]}{seeds})"
 
 

@@ -7,7 +7,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-
 from envs import ENV_SPECS, make_env
 from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError

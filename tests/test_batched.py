@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from baselines.batched import (BatchContext, StackedGuidedExplorer, StackedSACAgent,
-                               StackedTwinQAgent, evaluate_members)
+                               StackedTwinQAgent, agent_state, evaluate_members,
+                               load_agent_state)
 from baselines.common.buffer import Batch
 from baselines.common.context import TrainContext
 from baselines.common.evaluation import evaluate
@@ -435,37 +436,61 @@ def test_a_batch_records_the_training_returns_of_the_one_run_path(tmp_path):
         np.testing.assert_allclose(run.curve["train_return"], one_run, rtol=1e-5)
 
 
-def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8():
-    """Bitwise, weights and Adam moments: on the CPU neither the products nor Adam may round
-    a member's numbers by how many members are stacked (the fused Adam's tail did, on AVX2)."""
+@pytest.mark.parametrize("twin_q", [False, True])
+def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
+    """Bitwise, weights and Adam moments, also after a checkpoint round trip: on the CPU
+    neither the products nor Adam may round a member's numbers by how many members are
+    stacked (the fused Adam's scalar tail did, on AVX2)."""
     obs_dim, act_dim, rows = 2, 1, 32
-    config = SACConfig(hidden_sizes=(32, 32), batch_size=rows)
+    config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=rows)
+    agent_cls, stack_cls = ((TwinQSACAgent, StackedTwinQAgent) if twin_q
+                            else (SACAgent, StackedSACAgent))
 
     def stack(seeds):
-        return StackedSACAgent([SACAgent(obs_dim, act_dim, -np.ones(act_dim), np.ones(act_dim),
-                                         config, seed=s, cuda_graphs=False) for s in seeds],
-                               config, "cpu")
+        return stack_cls([agent_cls(obs_dim, act_dim, -np.ones(act_dim), np.ones(act_dim),
+                                    config, seed=s, cuda_graphs=False) for s in seeds],
+                         config, "cpu")
 
     small, large = stack((0, 1)), stack((0, 1) * 4)
     generator = torch.Generator().manual_seed(7)
-    for _ in range(5):
+    for step in range(5):
+        if step == 3:  # resume the large stack from its own checkpoint
+            resumed = stack((0, 1) * 4)
+            load_agent_state(resumed, agent_state(large))
+            large = resumed
         batch = Batch(torch.randn(2, rows, obs_dim, generator=generator),
                       torch.rand(2, rows, act_dim, generator=generator) * 2 - 1,
                       torch.randn(2, rows, generator=generator),
                       torch.randn(2, rows, obs_dim, generator=generator),
                       (torch.rand(2, rows, generator=generator) < 0.2).float())
-        noise = torch.randn(2, rows, act_dim, generator=generator)
-        small._gradient_step(batch, noise)
-        large._gradient_step(Batch(*[t.repeat(4, *[1] * (t.dim() - 1))
-                                     for t in vars(batch).values()]), noise.repeat(4, 1, 1))
-    for name in ("critics", "v", "v_target", "policy"):
-        per = 4 if name == "critics" else 2  # the critics stack two per member
-        for one, many in zip(getattr(small, name).parameters(),
-                             getattr(large, name).parameters()):
-            assert torch.equal(one, many[:per]), name
-    for optimizer in ("q_optimizer", "v_optimizer", "policy_optimizer"):
-        one, many = getattr(small, optimizer), getattr(large, optimizer)
-        for p, q in zip([p for g in one.param_groups for p in g["params"]],
-                        [q for g in many.param_groups for q in g["params"]]):
-            for moment in ("exp_avg", "exp_avg_sq"):
-                assert torch.equal(one.state[p][moment], many.state[q][moment][:p.shape[0]])
+        noises = [torch.randn(2, rows, act_dim, generator=generator)
+                  for _ in range(2 if twin_q else 1)]
+        repeated = Batch(*[t.repeat(4, *[1] * (t.dim() - 1)) for t in vars(batch).values()])
+        if twin_q:
+            small._gradient_step(batch, tuple(noises))
+            large._gradient_step(repeated, tuple(n.repeat(4, 1, 1) for n in noises))
+        else:
+            small._gradient_step(batch, noises[0])
+            large._gradient_step(repeated, noises[0].repeat(4, 1, 1))
+    if twin_q:
+        assert torch.equal(small.log_alpha, large.log_alpha[:2])
+    for name in small.MODULES:
+        one, many = getattr(small, name), getattr(large, name)
+        if isinstance(one, torch.optim.Optimizer):
+            for p, q in zip([p for g in one.param_groups for p in g["params"]],
+                            [q for g in many.param_groups for q in g["params"]]):
+                for moment in ("exp_avg", "exp_avg_sq"):
+                    assert torch.equal(one.state[p][moment],
+                                       many.state[q][moment][:p.shape[0]]), name
+        else:  # members first; the critics stack two per member
+            for p, q in zip(one.parameters(), many.parameters()):
+                assert torch.equal(p, q[:p.shape[0]]), name
+
+
+def test_a_batch_checkpoint_from_before_the_two_adam_groups_says_how_to_start_over():
+    config = SACConfig(hidden_sizes=(16, 16))
+    stacked = StackedSACAgent(_agents(SACAgent, config, seeds=(0, 1)), config, "cpu")
+    state = agent_state(stacked)
+    state["v_optimizer"] = torch.optim.Adam(stacked.v.parameters(), fused=True).state_dict()
+    with pytest.raises(ValueError, match=r"predates .* delete the batch's checkpoint"):
+        load_agent_state(stacked, state)
