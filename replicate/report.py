@@ -21,10 +21,10 @@ from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
 from replicate.claims import Group, judge_claims
 from replicate.published import published_points
-from replicate.templating import report_environment
 from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
                              probability_of_improvement, score_profile, stratified_bootstrap_ci,
                              substream)
+from replicate.templating import report_environment
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
 

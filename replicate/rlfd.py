@@ -29,9 +29,9 @@ from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
-from replicate.templating import report_environment
 from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
                              score_profile, stratified_bootstrap_ci, substream)
+from replicate.templating import report_environment
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"

@@ -441,15 +441,12 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
     """Bitwise, weights and Adam moments, also after a checkpoint round trip: on the CPU
     neither the products nor Adam may round a member's numbers by how many members are
     stacked (the fused Adam's scalar tail did, on AVX2)."""
-    obs_dim, act_dim, rows = 2, 1, 32
-    config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=rows)
+    config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=ROWS)
     agent_cls, stack_cls = ((TwinQSACAgent, StackedTwinQAgent) if twin_q
                             else (SACAgent, StackedSACAgent))
 
-    def stack(seeds):
-        return stack_cls([agent_cls(obs_dim, act_dim, -np.ones(act_dim), np.ones(act_dim),
-                                    config, seed=s, cuda_graphs=False) for s in seeds],
-                         config, "cpu")
+    def stack(seeds):  # the policy's output bias: 2 * ACT floats per member, short of a vector
+        return stack_cls(_agents(agent_cls, config, seeds), config, "cpu")
 
     small, large = stack((0, 1)), stack((0, 1) * 4)
     generator = torch.Generator().manual_seed(7)
@@ -458,12 +455,12 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
             resumed = stack((0, 1) * 4)
             load_agent_state(resumed, agent_state(large))
             large = resumed
-        batch = Batch(torch.randn(2, rows, obs_dim, generator=generator),
-                      torch.rand(2, rows, act_dim, generator=generator) * 2 - 1,
-                      torch.randn(2, rows, generator=generator),
-                      torch.randn(2, rows, obs_dim, generator=generator),
-                      (torch.rand(2, rows, generator=generator) < 0.2).float())
-        noises = [torch.randn(2, rows, act_dim, generator=generator)
+        batch = Batch(torch.randn(2, ROWS, OBS, generator=generator),
+                      torch.rand(2, ROWS, ACT, generator=generator) * 2 - 1,
+                      torch.randn(2, ROWS, generator=generator),
+                      torch.randn(2, ROWS, OBS, generator=generator),
+                      (torch.rand(2, ROWS, generator=generator) < 0.2).float())
+        noises = [torch.randn(2, ROWS, ACT, generator=generator)
                   for _ in range(2 if twin_q else 1)]
         repeated = Batch(*[t.repeat(4, *[1] * (t.dim() - 1)) for t in vars(batch).values()])
         if twin_q:
