@@ -92,6 +92,14 @@ def report(session: nox.Session) -> None:
                 env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(python=PYTHON)
+def carry(session: nox.Session) -> None:
+    """Pack the store's unfinished runs and seed batches into runs/carry/ to commit them."""
+    _install(session)
+    session.run("python", "-m", "replicate", "carry", *session.posargs,
+                env={"MUJOCO_GL": "disable"})
+
+
 # Experts of the paper's MuJoCo envs and of the dm-control tasks (the sparse cartpole uses
 # the dense one's). Kept here as data so the session reads without importing the package.
 EXPERT_ENVS = ["Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,fig4,ablate-threshold,report,table1,algos,envs} ...``."""
+"""Command line: ``python -m replicate {train,demos,expert,fig3,fig4,ablate-threshold,report,table1,carry,algos,envs} ...``."""
 
 from __future__ import annotations
 
@@ -312,6 +312,18 @@ def _build_parser() -> argparse.ArgumentParser:
     table1.add_argument("--out", type=Path, default=Path("reports/table1"),
                         help="report directory")
 
+    carry = sub.add_parser(
+        "carry", help="pack the store's unfinished runs and batches small enough to commit",
+        description="Pack every checkpoint of the store's unfinished runs and seed batches "
+                    "into <store>/carry/ without its replay buffer (rebuilt from the actions "
+                    "when unpacked, and checked against its SHA-256), so that it can be "
+                    "committed and resumed by the same command in a later sitting on another "
+                    "machine. Training may go on while it packs.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    carry.add_argument("--store", type=Path, default=None, help=STORE_HELP)
+    carry.add_argument("--list", action="store_true",
+                       help="list what is carried instead of packing")
+
     sub.add_parser("algos", help="list algorithms and their default hyperparameters")
     sub.add_parser("envs", help="list environments and their spec table")
     return parser
@@ -533,6 +545,25 @@ def _cmd_table1(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_carry(args: argparse.Namespace) -> int:
+    from replicate import carry
+
+    if not args.list:
+        packed, skipped = carry.pack_all(args.store, progress=True)
+        for item in packed:
+            print(f"carried {item.name}: step {item.step:,}, {item.members} run(s), "
+                  f"{item.bytes / 2**20:.1f} MiB")
+        for line in skipped:
+            print(f"not carried: {line}")
+        if not packed and not skipped:
+            print(f"no unfinished checkpoint in {args.store}")
+    for manifest in carry.listing(args.store):
+        print(f"{carry.carry_root(args.store) / manifest['name']}: {manifest['kind']} at step "
+              f"{manifest['step']:,} of {', '.join(manifest['members'])} (packed "
+              f"{manifest['packed_utc']} on {manifest['cpu_model']})")
+    return 0
+
+
 def _cmd_algos(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -561,7 +592,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
 
 COMMANDS = {"compare-rlfd": _cmd_rlfd, "train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3, "fig4": _cmd_fig4,
             "report": _cmd_report, "table1": _cmd_table1, "ablate-threshold": _cmd_ablate,
-            "algos": _cmd_algos, "envs": _cmd_envs}
+            "algos": _cmd_algos, "envs": _cmd_envs, "carry": _cmd_carry}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,8 +20,10 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.common.device import worker_devices
+from replicate import carry
 from replicate.claims import PAPER_FIG4_SEEDS
 from replicate.errors import HarnessError
+from replicate.provenance import portable_path
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
                               batch_key, execute, execute_batch, is_complete, load_run,
                               prepare)
@@ -232,15 +234,31 @@ def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interv
     return failed
 
 
-def plan_batches(missing: list[PreparedRun], batch: int | None
+def carried_batches(missing: list[PreparedRun], store: Path | None
+                    ) -> tuple[list[list[PreparedRun]], list[PreparedRun]]:
+    """The seed batches carried in the store (``replicate.carry``) whose members are all
+    missing, each as the batch it was, and the missing runs left over."""
+    if store is None:
+        return [], list(missing)
+    by_id = {p.run_id: p for p in missing}
+    batches = []
+    for manifest in carry.listing(store):
+        if manifest["kind"] == "batch" and all(r in by_id for r in manifest["members"]):
+            batches.append([by_id.pop(r) for r in manifest["members"]])
+    return batches, [p for p in missing if p.run_id in by_id]
+
+
+def plan_batches(missing: list[PreparedRun], batch: int | None, store: Path | None = None
                  ) -> list[PreparedRun | list[PreparedRun]]:
     """The grid's tasks: runs of an algorithm with a batched trainer grouped, at most
     ``batch`` per group, by everything but their seed; every other run alone. ``batch``
-    None or 1: every run alone."""
+    None or 1: every run alone. A batch carried in ``store`` resumes as the batch it was,
+    whatever ``batch`` says."""
     from baselines.registry import batched_trainer
 
+    carried, missing = carried_batches(missing, store)
     if batch is None or batch <= 1:
-        return list(missing)
+        return [*carried, *missing]
     groups: dict[str, list[PreparedRun]] = {}
     tasks: list[PreparedRun | list[PreparedRun]] = []
     for p in missing:
@@ -248,8 +266,8 @@ def plan_batches(missing: list[PreparedRun], batch: int | None
             tasks.append(p)
         else:
             groups.setdefault(batch_key(p), []).append(p)
-    batches = [group[i:i + batch] for group in groups.values()
-               for i in range(0, len(group), batch)]
+    batches = carried + [group[i:i + batch] for group in groups.values()
+                         for i in range(0, len(group), batch)]
     # the longest work first, so that the one-run tasks fill the gaps
     return sorted(batches, key=lambda b: -sum(p.spec.total_steps for p in b)) + tasks
 
@@ -424,7 +442,12 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
               f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
               f"{where} CPUs")
         return
-    tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch)
+    tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch,
+                         store)
+    for manifest in carry.listing(store):
+        print(f"  carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
+              f"(packed {manifest['packed_utc']} on {manifest['cpu_model']}); it resumes "
+              "from there" + (" as the batch it was" if manifest["kind"] == "batch" else ""))
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
     longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)
@@ -484,7 +507,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                                    gpu_workers).count("cuda")
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
-    tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots))
+    tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots), store)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     if env_workers is None:
         env_workers = max(0, (os.cpu_count() or 1) // workers - 1)
@@ -651,16 +674,36 @@ def stored_and_absent(specs: list[RunSpec], store: Path
     return runs, absent
 
 
-def absent_cells(specs: list[RunSpec], command: str) -> list[tuple[str, str, str]]:
+def absent_cells(specs: list[RunSpec], command: str, store: Path | None = None
+                 ) -> list[tuple[str, str, str]]:
     """A report's (env, algo, reason) line per cell for the runs not in the store yet, with
-    the seeds each cell lacks."""
+    the seeds each cell lacks and, for those carried unfinished in ``store``
+    (``replicate.carry``), the step they are carried at."""
+    carried_at = {run_id: manifest["step"] for manifest in
+                  (carry.listing(store) if store is not None else [])
+                  for run_id in manifest["members"]}
     seeds: dict[tuple[str, str], list[int]] = {}
+    steps: dict[tuple[str, str], dict[int, int]] = {}
     for spec in specs:
-        seeds.setdefault((spec.env_id, spec.algo), []).append(spec.seed)
-    return [(env_id, algo, f"{'seed' if len(lacking) == 1 else 'seeds'} "
-                           f"{', '.join(map(str, sorted(lacking)))} not in the store yet "
-                           f"(run `{command}` to train {'it' if len(lacking) == 1 else 'them'})")
-            for (env_id, algo), lacking in seeds.items()]
+        cell = (spec.env_id, spec.algo)
+        seeds.setdefault(cell, []).append(spec.seed)
+        step = carried_at.get(prepare(spec).run_id) if carried_at else None
+        if step is not None:
+            steps.setdefault(cell, {})[spec.seed] = step
+    lines = []
+    for cell, lacking in seeds.items():
+        one = len(lacking) == 1
+        carried_note = ""
+        if cell in steps:
+            at = ", ".join(f"seed {seed} at step {step:,}"
+                           for seed, step in sorted(steps[cell].items()))
+            where = portable_path(carry.carry_root(store))
+            carried_note = f"; carried unfinished in {where}: {at}"
+        lines.append((*cell, f"{'seed' if one else 'seeds'} {', '.join(map(str, sorted(lacking)))} "
+                             f"not in the store yet{carried_note} (run `{command}` to "
+                             f"{'train' if not carried_note else 'train or resume'} "
+                             f"{'it' if one else 'them'})"))
+    return lines
 
 
 def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
@@ -672,7 +715,7 @@ def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], pr
     runs, absent = stored_and_absent(specs, store)
     if not runs:
         return None
-    return GridOutcome(runs, [], None, skipped + absent_cells(absent, command))
+    return GridOutcome(runs, [], None, skipped + absent_cells(absent, command, store))
 
 
 def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
@@ -700,7 +743,8 @@ def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, comman
     if len(chosen) == len(specs) or dry_run:
         return outcome
     outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
-    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command)
+    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command,
+                                   store)
     return outcome
 
 

@@ -38,7 +38,7 @@ from baselines.common.checkpoint import CheckpointDeviceError
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import get_algorithm
-from replicate import provenance
+from replicate import carry, provenance
 from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
@@ -139,7 +139,7 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
 
 
 DEFAULT_CHECKPOINT_INTERVAL = 10_000  # env steps; taken at the next episode end
-CHECKPOINT_FILE = "checkpoint.pt"
+CHECKPOINT_FILE = carry.CHECKPOINT_FILE
 SITTINGS_FILE = "sittings.json"
 
 
@@ -189,6 +189,8 @@ def execute(prepared: PreparedRun, store: Path,
             if not is_complete(final_dir):  # another process may have finished it
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
+                    if not (work_dir / CHECKPOINT_FILE).is_file():
+                        carry.unpack_run(store, prepared.run_id)  # packed in another sitting
                     try:
                         _train_into(prepared, work_dir, on_steps, checkpoint_interval, device,
                                     follow_checkpoint)
@@ -202,8 +204,10 @@ def execute(prepared: PreparedRun, store: Path,
                             "--gpu-workers, or with --device cpu") from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
+                        carry.discard(store, prepared.run_id)
                         raise
                 (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
+                carry.discard(store, prepared.run_id)
                 if final_dir.exists():  # a stale incomplete directory of the same address
                     shutil.rmtree(final_dir)
                 os.replace(work_dir, final_dir)
@@ -406,6 +410,9 @@ def execute_batch(members: list[PreparedRun], store: Path,
                 raise RunLockedError(f"run {p.run_id} was just finished by another process",
                                      "run the same command again")
         batch_dir.mkdir(exist_ok=True)
+        (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
+        if not (batch_dir / CHECKPOINT_FILE).is_file():
+            carry.unpack_batch(store, ident)  # packed in another sitting, maybe elsewhere
         batch_sittings = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
         resolved = resolve_device(device, has_gpu_path=True)
@@ -454,6 +461,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
             shutil.rmtree(batch_dir, ignore_errors=True)
             for work in work_dirs:
                 shutil.rmtree(work, ignore_errors=True)
+            carry.discard(store, ident)
             raise
         finally:
             for recorder in recorders:
@@ -475,6 +483,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
         shutil.rmtree(batch_dir, ignore_errors=True)
+        carry.discard(store, ident)
         return BatchOutcome(runs, failed)
     finally:
         for lock_path, handle in locks:

@@ -1,0 +1,399 @@
+"""Carried checkpoints: an unfinished run or seed batch packed small enough to commit, so
+that training goes on in the next sitting on another machine.
+
+A checkpoint (``baselines.common.checkpoint``) is mostly its replay buffer: an Ant member
+at 200k steps holds 180 MB of transitions. But every transition the env gave is fixed by
+the env's seed and the actions taken (MuJoCo and dm-control are deterministic), so a
+carried checkpoint keeps the actions and drops the observations, rewards and termination
+flags; unpacking steps fresh envs through the actions again and checks the rebuilt replay
+against the SHA-256 of the original, so a resumed run trains on exactly the data it had.
+Everything else of the checkpoint (networks, optimisers, every random stream, the curve so
+far) is kept as it was, xz-compressed, with the run directories' small files (spec, curve,
+sittings) beside it.
+
+Layout: ``<store>/carry/<batch id or run id>/`` holding ``manifest.json``,
+``state.pt.xz`` and ``partial/<run id>/``. ``python -m replicate carry`` packs every
+unfinished checkpoint of a store; the runner unpacks a carried one when it meets a run or
+batch without a local checkpoint, and removes it when the run or batch finishes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import lzma
+import os
+import shutil
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from replicate import provenance
+from replicate.errors import HarnessError
+
+CARRY_DIR = "carry"
+FORMAT = 1
+STATE_FILE = "state.pt.xz"
+MANIFEST_FILE = "manifest.json"
+CHECKPOINT_FILE = "checkpoint.pt"  # replicate.runner's name for it
+RUN_FILES = ("spec.json", "curve.csv", "sittings.json")  # what a run directory has mid-training
+BATCH_FILES = ("sittings.json", "members.json")
+
+
+class CarryError(HarnessError):
+    """A checkpoint that cannot be carried, or a carried one that does not unpack here."""
+
+
+@dataclass(frozen=True)
+class Packed:
+    name: str  # the batch id or run id
+    step: int
+    members: int
+    bytes: int  # of the carried directory
+
+
+def carry_root(store: Path) -> Path:
+    return Path(store) / CARRY_DIR
+
+
+def _sha256(array: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
+
+
+# -- rebuilding a replay from its actions -------------------------------------------------
+
+def _steps(count: int, what: str, progress: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(range(count), desc=f"rebuilding {what}", unit="step", leave=False,
+                mininterval=1.0, disable=not progress, dynamic_ncols=True)
+
+
+def regenerate_batch_replay(env_id: str, seeds: list[int], actions: np.ndarray,
+                            progress: bool = False) -> np.ndarray:
+    """The stacked replay rows (members, steps, 2 obs + act + 2) that a seed batch's envs
+    produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
+    ``baselines.batched.run_stacked_off_policy`` steps them (every member alive)."""
+    from baselines.common.stacked import StackedReplay
+    from envs.vector import EnvBatch
+
+    n, steps, act_dim = actions.shape
+    envs = EnvBatch(env_id, seeds)
+    try:
+        replay = StackedReplay(n, envs.obs_dim, act_dim, max(steps, 1), torch.device("cpu"))
+        obs = envs.reset(seeds=seeds)
+        for t in _steps(steps, f"{env_id} seeds {seeds}", progress):
+            result = envs.step(actions[:, t])
+            replay.add(obs, actions[:, t], result.rewards, result.next_obs, result.terminated)
+            obs = result.obs
+    finally:
+        envs.close()
+    return replay.data[:, :steps].numpy()
+
+
+def regenerate_run_replay(env_id: str, seed: int, actions: np.ndarray,
+                          progress: bool = False) -> dict[str, np.ndarray]:
+    """The one-run replay arrays that ``baselines.sac.run_off_policy``'s env produces when
+    stepped through ``actions`` (steps, act_dim) from its seed."""
+    from baselines.common.buffer import ReplayBuffer
+    from envs import make_env
+
+    env = make_env(env_id, seed=seed)
+    try:
+        replay = ReplayBuffer(env.observation_space.shape[0], actions.shape[1],
+                              max(len(actions), 1))
+        obs, _ = env.reset(seed=seed)
+        for t in _steps(len(actions), f"{env_id} seed {seed}", progress):
+            action = actions[t]
+            next_obs, reward, terminated, truncated, _ = env.step(action)
+            replay.add(obs, action, reward, next_obs, terminated)
+            obs = next_obs
+            if terminated or truncated:
+                obs, _ = env.reset()
+    finally:
+        env.close()
+    state = replay.state_dict()
+    return {name: state[name][:len(actions)] for name in
+            ("observations", "actions", "rewards", "next_observations", "terminated")}
+
+
+def _run_replay_digest(arrays: dict[str, np.ndarray]) -> str:
+    joined = hashlib.sha256()
+    for name in ("observations", "actions", "rewards", "next_observations", "terminated"):
+        joined.update(_sha256(arrays[name]).encode())
+    return joined.hexdigest()
+
+
+# -- packing ------------------------------------------------------------------------------
+
+def _write_state(path: Path, state: dict[str, Any]) -> None:
+    raw = io.BytesIO()
+    torch.save(state, raw)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_bytes(lzma.compress(raw.getvalue(), preset=6))
+    os.replace(tmp, path)
+
+
+def _read_state(path: Path) -> dict[str, Any]:
+    return torch.load(io.BytesIO(lzma.decompress(path.read_bytes())), weights_only=False,
+                      map_location="cpu")
+
+
+def _run_spec(work_dir: Path) -> dict[str, Any]:
+    return json.loads((work_dir / "spec.json").read_text())
+
+
+def batch_members(store: Path, ident: str) -> list[str]:
+    """The run ids of batch ``ident``, in its order, from the ``members.json`` the runner
+    writes into the batch's directory."""
+    listed = Path(store) / f".{ident}" / "members.json"
+    if not listed.is_file():
+        raise CarryError(f"{ident} does not list its members (started before the runner "
+                         "wrote members.json)", "let the batch finish where it is")
+    return json.loads(listed.read_text())
+
+
+def _copy_files(source: Path, target: Path, names: tuple[str, ...]) -> None:
+    target.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        if (source / name).is_file():
+            shutil.copy2(source / name, target / name)
+
+
+def _finish_pack(store: Path, name: str, build: Any) -> Path:
+    """Build the carried directory aside, then swap it in: a kill mid-pack leaves the last
+    carried version whole."""
+    root = carry_root(store)
+    root.mkdir(parents=True, exist_ok=True)
+    aside = root / f".{name}.packing"
+    shutil.rmtree(aside, ignore_errors=True)
+    aside.mkdir()
+    build(aside)
+    final = root / name
+    old = root / f".{name}.old"
+    shutil.rmtree(old, ignore_errors=True)
+    if final.exists():
+        os.replace(final, old)
+    os.replace(aside, final)
+    shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def _manifest(kind: str, name: str, env_id: str, step: int, members: list[str],
+              seeds: list[int], digest: str) -> dict[str, Any]:
+    return {"format": FORMAT, "kind": kind, "name": name, "env_id": env_id, "step": step,
+            "members": members, "seeds": seeds, "replay_sha256": digest,
+            "packed_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "git_revision": provenance.git_revision(), "cpu_model": provenance.cpu_model()}
+
+
+def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
+    """Carry the checkpoint of seed batch ``ident`` (``<store>/.<ident>/``)."""
+    store = Path(store)
+    batch_dir = store / f".{ident}"
+    checkpoint = torch.load(batch_dir / CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    members = batch_members(store, ident)
+    work_dirs = [store / f".partial-{run_id}" for run_id in members]
+    env_id = _run_spec(work_dirs[0])["env_id"]
+    seeds, step = list(checkpoint["seeds"]), int(checkpoint["step"])
+    if "data" not in checkpoint.get("buffer", {}):
+        raise CarryError(f"{ident}'s checkpoint has no stacked replay", "let it finish here")
+    data = checkpoint["buffer"]["data"].numpy()
+    if not checkpoint["alive"].all():
+        raise CarryError(f"{ident} has a failed member", "let the batch finish where it is")
+    if data.shape[1] != step:
+        raise CarryError(f"{ident}'s replay holds {data.shape[1]} transitions after {step} "
+                         "steps (it wrapped around)", "let the batch finish where it is")
+    obs_dim = checkpoint["obs"].shape[1]  # a row is (s, a, r, s', terminated)
+    act_dim = data.shape[2] - 2 - 2 * obs_dim
+    actions = np.ascontiguousarray(data[:, :, obs_dim:obs_dim + act_dim])
+    rebuilt = regenerate_batch_replay(env_id, seeds, actions, progress)
+    if not np.array_equal(rebuilt, data):
+        raise CarryError(f"{ident}'s replay does not come back from its actions here",
+                         "let the batch finish where it is")
+    carried = dict(checkpoint)
+    carried["buffer"] = {"actions": torch.from_numpy(actions),
+                         "position": checkpoint["buffer"]["position"]}
+
+    def build(target: Path) -> None:
+        _write_state(target / STATE_FILE, carried)
+        _copy_files(batch_dir, target / "batch", ("sittings.json",))
+        (target / "batch" / "members.json").write_text(json.dumps(members) + "\n")
+        for run_id, work in zip(members, work_dirs):
+            _copy_files(work, target / "partial" / run_id, RUN_FILES)
+        (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
+            "batch", ident, env_id, step, members, seeds, _sha256(data)), indent=1) + "\n")
+
+    final = _finish_pack(store, ident, build)
+    return Packed(ident, step, len(members), _size(final))
+
+
+def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
+    """Carry the checkpoint of the one-run ``run_id`` (``<store>/.partial-<run_id>/``)."""
+    store = Path(store)
+    work = store / f".partial-{run_id}"
+    checkpoint = torch.load(work / CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    spec = _run_spec(work)
+    step, buffer = int(checkpoint["step"]), checkpoint.get("buffer")
+    names = ("observations", "actions", "rewards", "next_observations", "terminated")
+    if not isinstance(buffer, dict) or any(name not in buffer for name in names):
+        raise CarryError(f"{run_id}'s checkpoint has no plain replay buffer ({spec['algo']})",
+                         "let the run finish where it is")
+    if len(buffer["rewards"]) != step:
+        raise CarryError(f"{run_id}'s replay holds {len(buffer['rewards'])} transitions "
+                         f"after {step} steps (preloaded, or wrapped around)",
+                         "let the run finish where it is")
+    actions = np.ascontiguousarray(buffer["actions"])
+    rebuilt = regenerate_run_replay(spec["env_id"], spec["seed"], actions, progress)
+    if any(not np.array_equal(rebuilt[name], buffer[name]) for name in names):
+        raise CarryError(f"{run_id}'s replay does not come back from its actions here",
+                         "let the run finish where it is")
+    carried = dict(checkpoint)
+    carried["buffer"] = {"actions": actions, "position": buffer["position"]}
+
+    def build(target: Path) -> None:
+        _write_state(target / STATE_FILE, carried)
+        _copy_files(work, target / "partial" / run_id, RUN_FILES)
+        (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
+            "run", run_id, spec["env_id"], step, [run_id], [spec["seed"]],
+            _run_replay_digest(buffer)), indent=1) + "\n")
+
+    final = _finish_pack(store, run_id, build)
+    return Packed(run_id, step, 1, _size(final))
+
+
+def _size(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def unfinished(store: Path) -> list[tuple[str, str]]:
+    """(kind, name) of every checkpoint in the store: seed batches, then one-run runs."""
+    store = Path(store)
+    found = [("batch", p.parent.name[1:]) for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
+    found += [("run", p.parent.name.removeprefix(".partial-"))
+              for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))]
+    return found
+
+
+def pack_all(store: Path, progress: bool = False) -> tuple[list[Packed], list[str]]:
+    """Carry every checkpoint of the store; the packed ones, and a line per one that could
+    not be carried."""
+    packed, skipped = [], []
+    for kind, name in unfinished(store):
+        pack = pack_batch if kind == "batch" else pack_run
+        try:
+            packed.append(pack(store, name, progress))
+        except CarryError as exc:
+            skipped.append(str(exc))
+        except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
+            skipped.append(f"{name}'s checkpoint has no replay of the SAC family's layout "
+                           f"({type(exc).__name__}: {exc}); fix: let it finish where it is")
+    return packed, skipped
+
+
+# -- unpacking ----------------------------------------------------------------------------
+
+def carried(store: Path, name: str) -> Path | None:
+    path = carry_root(store) / name
+    return path if (path / MANIFEST_FILE).is_file() else None
+
+
+def _load_carried(path: Path, kind: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    manifest = json.loads((path / MANIFEST_FILE).read_text())
+    if manifest.get("format") != FORMAT or manifest.get("kind") != kind:
+        raise CarryError(f"{path} is not a carried {kind} of format {FORMAT}",
+                         f"delete {path} to start the {kind} over")
+    return manifest, _read_state(path / STATE_FILE)
+
+
+ACCEPT_REBUILT = "REPLICATE_CARRY_ACCEPT_REBUILT"  # set to 1: resume on a replay that differs
+
+
+def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
+    """How the rebuilt replay compares with the packed one, for the runs' sittings; raises
+    where it differs, unless the user accepts that."""
+    if digest == manifest["replay_sha256"]:
+        return "rebuilt bit for bit"
+    if os.environ.get(ACCEPT_REBUILT) == "1":
+        return f"rebuilt differently here, accepted ({ACCEPT_REBUILT}=1)"
+    raise CarryError(
+        f"the carried {manifest['kind']} {manifest['name']} did not rebuild its replay on this "
+        f"machine (packed on {manifest['cpu_model']}; the envs stepped differently here)",
+        f"resume it on a machine like that one, set {ACCEPT_REBUILT}=1 to resume on the "
+        f"replay as rebuilt here, or delete {path} to start it over")
+
+
+def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
+    """Mark the last sitting of an unpacked run: where it was packed, and its replay."""
+    sittings_path = work / "sittings.json"
+    if not sittings_path.is_file():
+        return
+    sittings = json.loads(sittings_path.read_text())
+    if sittings:
+        sittings[-1]["carried"] = {"step": manifest["step"], "packed_on": manifest["cpu_model"],
+                                   "unpacked_on": provenance.cpu_model(), "replay": replay}
+        sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
+
+
+def unpack_batch(store: Path, ident: str) -> bool:
+    """Put carried batch ``ident`` back as ``<store>/.<ident>/checkpoint.pt`` and its
+    members' unfinished run directories; False when nothing of it is carried."""
+    path = carried(store, ident)
+    if path is None:
+        return False
+    manifest, state = _load_carried(path, "batch")
+    actions = state["buffer"]["actions"].numpy()
+    data = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
+    replay = _check_rebuilt(path, manifest, _sha256(data))
+    state["buffer"] = {"data": torch.from_numpy(data), "position": state["buffer"]["position"]}
+    store = Path(store)
+    batch_dir = store / f".{ident}"
+    _copy_files(path / "batch", batch_dir, BATCH_FILES)
+    for run_id in manifest["members"]:
+        _copy_files(path / "partial" / run_id, store / f".partial-{run_id}", RUN_FILES)
+        _note_carried(store / f".partial-{run_id}", manifest, replay)
+    _write_checkpoint(batch_dir / CHECKPOINT_FILE, state)
+    return True
+
+
+def unpack_run(store: Path, run_id: str) -> bool:
+    """Put carried one-run ``run_id`` back as ``<store>/.partial-<run_id>/``; False when it
+    is not carried."""
+    path = carried(store, run_id)
+    if path is None:
+        return False
+    manifest, state = _load_carried(path, "run")
+    arrays = regenerate_run_replay(manifest["env_id"], manifest["seeds"][0],
+                                   np.asarray(state["buffer"]["actions"]))
+    replay = _check_rebuilt(path, manifest, _run_replay_digest(arrays))
+    state["buffer"] = {**arrays, "position": state["buffer"]["position"]}
+    work = Path(store) / f".partial-{run_id}"
+    _copy_files(path / "partial" / run_id, work, RUN_FILES)
+    _note_carried(work, manifest, replay)
+    _write_checkpoint(work / CHECKPOINT_FILE, state)
+    return True
+
+
+def _write_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    from baselines.common.checkpoint import save_checkpoint
+
+    save_checkpoint(path, state)
+
+
+def discard(store: Path, name: str) -> None:
+    """Forget carried ``name`` (its run or batch has finished)."""
+    shutil.rmtree(carry_root(store) / name, ignore_errors=True)
+
+
+def listing(store: Path) -> list[dict[str, Any]]:
+    """The manifests of everything carried in the store."""
+    root = carry_root(store)
+    if not root.is_dir():
+        return []
+    return [json.loads((p / MANIFEST_FILE).read_text())
+            for p in sorted(root.iterdir()) if (p / MANIFEST_FILE).is_file()]

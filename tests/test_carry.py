@@ -1,0 +1,144 @@
+"""Carried checkpoints: an interrupted run or seed batch packed without its replay, moved to
+a store that has nothing else of it, resumes there and ends on the uninterrupted curve."""
+
+import json
+import shutil
+
+import pytest
+import torch
+
+from replicate import carry
+from replicate.cli import main
+from replicate.runner import execute, execute_batch, prepare
+from replicate.spec import RunSpec
+from tests.helpers import TINY
+
+HOPPER = "Hopper-v5"
+
+
+class _Stop(KeyboardInterrupt):
+    """Raised from the progress callback: the process is interrupted, the checkpoint kept."""
+
+
+def _stop_after(calls: int):
+    seen = [0]
+
+    def on_steps(n: int) -> None:
+        seen[0] += 1
+        if seen[0] == calls:
+            raise _Stop
+    return on_steps
+
+
+def _curves(store):
+    """Each finished run's curve without its wall-time column."""
+    return {p.name: [line.rsplit(",", 1)[0] for line in (p / "curve.csv").read_text().splitlines()]
+            for p in sorted(store.iterdir()) if (p / "provenance.json").is_file()}
+
+
+def _batch_specs():
+    return [prepare(RunSpec("drl-eg", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in (0, 1)]
+
+
+def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tmp_path):
+    whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
+    execute_batch(_batch_specs(), whole, device="cpu", checkpoint_interval=200)
+
+    with pytest.raises(_Stop):  # stopped at step 500, after the checkpoint at 400
+        execute_batch(_batch_specs(), first, device="cpu", checkpoint_interval=200,
+                      on_steps=_stop_after(500))
+    (checkpoint,) = first.glob(".batch-*/checkpoint.pt")
+    packed, skipped = carry.pack_all(first)
+    assert skipped == [] and [p.step for p in packed] == [400] and packed[0].members == 2
+    state = carry.carry_root(first) / packed[0].name
+    assert packed[0].bytes < checkpoint.stat().st_size / 2  # the replay stayed behind
+
+    shutil.copytree(carry.carry_root(first), carry.carry_root(second))  # another machine
+    outcome = execute_batch(_batch_specs(), second, device="cpu", checkpoint_interval=200)
+    assert len(outcome.runs) == 2 and not outcome.failed
+    assert _curves(second) == _curves(whole)
+    for run in outcome.runs:
+        sittings = json.loads((run.path / "sittings.json").read_text())
+        assert [s["resumed_from_step"] for s in sittings] == [0, 400]
+        assert sittings[0]["carried"]["replay"] == "rebuilt bit for bit"
+    assert state.name not in {p.name for p in carry.carry_root(second).iterdir()}  # done
+
+
+def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
+    spec = RunSpec("sac", HOPPER, 3, 700, 350, 1, dict(TINY))
+    whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
+    execute(prepare(spec), whole, device="cpu", checkpoint_interval=150)
+    with pytest.raises(_Stop):
+        execute(prepare(spec), first, device="cpu", checkpoint_interval=150,
+                on_steps=_stop_after(600))
+    assert main(["carry", "--store", str(first)]) == 0
+    (manifest,) = carry.listing(first)
+    assert manifest["kind"] == "run" and 150 <= manifest["step"] < 600
+    shutil.copytree(carry.carry_root(first), carry.carry_root(second))
+    execute(prepare(spec), second, device="cpu", checkpoint_interval=150)
+    assert _curves(second) == _curves(whole)
+    assert carry.listing(second) == []
+
+
+def test_a_carried_replay_that_does_not_rebuild_is_refused_and_kept(tmp_path, monkeypatch):
+    spec = RunSpec("sac", HOPPER, 4, 500, 250, 1, dict(TINY))
+    with pytest.raises(_Stop):
+        execute(prepare(spec), tmp_path, device="cpu", checkpoint_interval=100,
+                on_steps=_stop_after(400))
+    (packed,), _ = carry.pack_all(tmp_path)
+    shutil.rmtree(tmp_path / f".partial-{packed.name}")
+    manifest_path = carry.carry_root(tmp_path) / packed.name / carry.MANIFEST_FILE
+    manifest = json.loads(manifest_path.read_text())
+    manifest["replay_sha256"] = "0" * 64  # as if the envs stepped differently here
+    manifest_path.write_text(json.dumps(manifest))
+    with pytest.raises(carry.CarryError, match="did not rebuild its replay on this machine"):
+        execute(prepare(spec), tmp_path, device="cpu")
+    assert carry.listing(tmp_path)  # still carried, for a machine where it rebuilds
+    monkeypatch.setenv(carry.ACCEPT_REBUILT, "1")  # the user takes the replay as rebuilt
+    run = execute(prepare(spec), tmp_path, device="cpu")
+    assert "accepted" in run.provenance["sittings"][0]["carried"]["replay"]
+
+
+def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
+    spec = RunSpec("sac", HOPPER, 5, 500, 250, 1, {**TINY, "buffer_size": 150})
+    with pytest.raises(_Stop):
+        execute(prepare(spec), tmp_path, device="cpu", checkpoint_interval=100,
+                on_steps=_stop_after(400))
+    assert torch.load(next(tmp_path.glob(".partial-*/checkpoint.pt")),
+                      weights_only=False)["step"] > 150
+    assert main(["carry", "--store", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "not carried" in out and "wrapped around" in out
+    assert carry.listing(tmp_path) == []
+
+
+def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_path):
+    from replicate.experiments import plan_batches
+
+    runs = [prepare(RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in range(4)]
+    entry = carry.carry_root(tmp_path) / "batch-x"
+    entry.mkdir(parents=True)
+    members = [runs[3].run_id, runs[1].run_id]
+    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
+        {"format": carry.FORMAT, "kind": "batch", "name": "batch-x", "members": members}))
+    for batch in (None, 1, 3):
+        tasks = plan_batches(runs, batch, tmp_path)
+        assert [p.run_id for p in tasks[0]] == members
+        rest = [p.run_id for t in tasks[1:] for p in (t if isinstance(t, list) else [t])]
+        assert sorted(rest) == sorted([runs[0].run_id, runs[2].run_id])
+    assert plan_batches(runs[:2], 3, tmp_path)[0] == runs[:2]  # a member is done: not carried
+
+
+def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
+    from replicate.experiments import absent_cells
+
+    specs = [RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY)) for seed in (0, 1)]
+    entry = carry.carry_root(tmp_path) / "batch-y"
+    entry.mkdir(parents=True)
+    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
+        {"format": carry.FORMAT, "kind": "batch", "name": "batch-y", "step": 1234,
+         "members": [prepare(specs[1]).run_id]}))
+    ((env_id, algo, why),) = absent_cells(specs, "nox -s x", tmp_path)
+    assert (env_id, algo) == (HOPPER, "sac")
+    assert "seeds 0, 1 not in the store yet" in why and "seed 1 at step 1,234" in why
+    assert "carried" not in absent_cells(specs, "nox -s x")[0][2]  # no store, no carry
