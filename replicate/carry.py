@@ -12,9 +12,10 @@ far) is kept as it was, xz-compressed, with the run directories' small files (sp
 sittings) beside it.
 
 Layout: ``<store>/carry/<batch id or run id>/`` holding ``manifest.json``,
-``state.pt.xz`` and ``partial/<run id>/``. ``python -m replicate carry`` packs every
+``state.pt.xz``, ``actions-<k>.npy.xz`` per member and ``partial/<run id>/``. ``python -m replicate carry`` packs every
 unfinished checkpoint of a store; the runner unpacks a carried one when it meets a run or
-batch without a local checkpoint, and removes it when the run or batch finishes.
+batch without a local checkpoint (or with an older one), and removes it when the run or
+batch lands, never when it fails.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ import json
 import lzma
 import os
 import shutil
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -39,6 +42,7 @@ from replicate.errors import HarnessError
 CARRY_DIR = "carry"
 FORMAT = 1
 STATE_FILE = "state.pt.xz"
+ACTIONS_FILE = "actions-{}.npy.xz"  # member k's actions
 MANIFEST_FILE = "manifest.json"
 CHECKPOINT_FILE = "checkpoint.pt"  # replicate.runner's name for it
 RUN_FILES = ("spec.json", "curve.csv", "sittings.json")  # what a run directory has mid-training
@@ -131,17 +135,30 @@ def _run_replay_digest(arrays: dict[str, np.ndarray]) -> str:
 
 # -- packing ------------------------------------------------------------------------------
 
-def _write_state(path: Path, state: dict[str, Any]) -> None:
-    raw = io.BytesIO()
-    torch.save(state, raw)
+def _write_xz(path: Path, payload: bytes) -> None:
     tmp = path.with_name(path.name + ".partial")
-    tmp.write_bytes(lzma.compress(raw.getvalue(), preset=6))
+    tmp.write_bytes(lzma.compress(payload, preset=6))
     os.replace(tmp, path)
 
 
-def _read_state(path: Path) -> dict[str, Any]:
-    return torch.load(io.BytesIO(lzma.decompress(path.read_bytes())), weights_only=False,
-                      map_location="cpu")
+def _write_state(target: Path, state: dict[str, Any], actions: np.ndarray) -> None:
+    """The checkpoint without its replay, and each member's actions in a file of its own
+    (a paper-budget member's are 32 MB; one file per member keeps every file small)."""
+    raw = io.BytesIO()
+    torch.save(state, raw)
+    _write_xz(target / STATE_FILE, raw.getvalue())
+    for k, member_actions in enumerate(actions):
+        raw = io.BytesIO()
+        np.save(raw, np.ascontiguousarray(member_actions, dtype=np.float32))
+        _write_xz(target / ACTIONS_FILE.format(k), raw.getvalue())
+
+
+def _read_state(path: Path, members: int) -> tuple[dict[str, Any], np.ndarray]:
+    state = torch.load(io.BytesIO(lzma.decompress((path / STATE_FILE).read_bytes())),
+                       weights_only=False, map_location="cpu")
+    actions = np.stack([np.load(io.BytesIO(lzma.decompress(
+        (path / ACTIONS_FILE.format(k)).read_bytes()))) for k in range(members)])
+    return state, actions
 
 
 def _run_spec(work_dir: Path) -> dict[str, Any]:
@@ -159,28 +176,51 @@ def batch_members(store: Path, ident: str) -> list[str]:
 
 
 def _copy_files(source: Path, target: Path, names: tuple[str, ...]) -> None:
+    """Copy the small files a resume reads. The runner rewrites them in place while it
+    trains, so a JSON file caught mid-write is copied again until it parses."""
     target.mkdir(parents=True, exist_ok=True)
     for name in names:
-        if (source / name).is_file():
+        if not (source / name).is_file():
+            continue
+        for _ in range(20):
             shutil.copy2(source / name, target / name)
+            if not name.endswith(".json"):
+                break
+            try:
+                json.loads((target / name).read_text())
+                break
+            except ValueError:
+                time.sleep(0.1)
+        else:
+            raise CarryError(f"{source / name} does not parse", "pack again")
 
 
-def _finish_pack(store: Path, name: str, build: Any) -> Path:
+def _is_done(store: Path, run_id: str) -> bool:
+    return (Path(store) / run_id / "provenance.json").is_file()
+
+
+def _finish_pack(store: Path, name: str, members: list[str], source: Path,
+                 build: Callable[[Path], None]) -> Path:
     """Build the carried directory aside, then swap it in: a kill mid-pack leaves the last
-    carried version whole."""
+    carried version whole. A run that landed while it packed is not carried."""
     root = carry_root(store)
     root.mkdir(parents=True, exist_ok=True)
     aside = root / f".{name}.packing"
     shutil.rmtree(aside, ignore_errors=True)
     aside.mkdir()
-    build(aside)
-    final = root / name
-    old = root / f".{name}.old"
-    shutil.rmtree(old, ignore_errors=True)
-    if final.exists():
-        os.replace(final, old)
-    os.replace(aside, final)
-    shutil.rmtree(old, ignore_errors=True)
+    try:
+        build(aside)
+        if not source.is_file() or any(_is_done(store, r) for r in members):
+            raise CarryError(f"{name} finished while it was packed", "nothing to carry")
+        final = root / name
+        old = root / f".{name}.old"
+        shutil.rmtree(old, ignore_errors=True)
+        if final.exists():
+            os.replace(final, old)
+        os.replace(aside, final)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
     return final
 
 
@@ -192,11 +232,15 @@ def _manifest(kind: str, name: str, env_id: str, step: int, members: list[str],
             "git_revision": provenance.git_revision(), "cpu_model": provenance.cpu_model()}
 
 
+def _load(path: Path) -> dict[str, Any]:
+    return torch.load(path, weights_only=False, map_location="cpu")
+
+
 def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     """Carry the checkpoint of seed batch ``ident`` (``<store>/.<ident>/``)."""
     store = Path(store)
     batch_dir = store / f".{ident}"
-    checkpoint = torch.load(batch_dir / CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    checkpoint = _load(batch_dir / CHECKPOINT_FILE)
     members = batch_members(store, ident)
     work_dirs = [store / f".partial-{run_id}" for run_id in members]
     env_id = _run_spec(work_dirs[0])["env_id"]
@@ -208,7 +252,8 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
         raise CarryError(f"{ident} has a failed member", "let the batch finish where it is")
     if data.shape[1] != step:
         raise CarryError(f"{ident}'s replay holds {data.shape[1]} transitions after {step} "
-                         "steps (it wrapped around)", "let the batch finish where it is")
+                         "steps (preloaded with demonstrations, or wrapped around)",
+                         "let the batch finish where it is")
     obs_dim = checkpoint["obs"].shape[1]  # a row is (s, a, r, s', terminated)
     act_dim = data.shape[2] - 2 - 2 * obs_dim
     actions = np.ascontiguousarray(data[:, :, obs_dim:obs_dim + act_dim])
@@ -216,12 +261,11 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     if not np.array_equal(rebuilt, data):
         raise CarryError(f"{ident}'s replay does not come back from its actions here",
                          "let the batch finish where it is")
-    carried = dict(checkpoint)
-    carried["buffer"] = {"actions": torch.from_numpy(actions),
-                         "position": checkpoint["buffer"]["position"]}
+    carried_state = dict(checkpoint)
+    carried_state["buffer"] = {"position": checkpoint["buffer"]["position"]}
 
     def build(target: Path) -> None:
-        _write_state(target / STATE_FILE, carried)
+        _write_state(target, carried_state, actions)
         _copy_files(batch_dir, target / "batch", ("sittings.json",))
         (target / "batch" / "members.json").write_text(json.dumps(members) + "\n")
         for run_id, work in zip(members, work_dirs):
@@ -229,7 +273,7 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
         (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
             "batch", ident, env_id, step, members, seeds, _sha256(data)), indent=1) + "\n")
 
-    final = _finish_pack(store, ident, build)
+    final = _finish_pack(store, ident, members, batch_dir / CHECKPOINT_FILE, build)
     return Packed(ident, step, len(members), _size(final))
 
 
@@ -237,7 +281,7 @@ def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
     """Carry the checkpoint of the one-run ``run_id`` (``<store>/.partial-<run_id>/``)."""
     store = Path(store)
     work = store / f".partial-{run_id}"
-    checkpoint = torch.load(work / CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    checkpoint = _load(work / CHECKPOINT_FILE)
     spec = _run_spec(work)
     step, buffer = int(checkpoint["step"]), checkpoint.get("buffer")
     names = ("observations", "actions", "rewards", "next_observations", "terminated")
@@ -246,24 +290,24 @@ def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
                          "let the run finish where it is")
     if len(buffer["rewards"]) != step:
         raise CarryError(f"{run_id}'s replay holds {len(buffer['rewards'])} transitions "
-                         f"after {step} steps (preloaded, or wrapped around)",
-                         "let the run finish where it is")
+                         f"after {step} steps (preloaded with demonstrations, or wrapped "
+                         "around)", "let the run finish where it is")
     actions = np.ascontiguousarray(buffer["actions"])
     rebuilt = regenerate_run_replay(spec["env_id"], spec["seed"], actions, progress)
     if any(not np.array_equal(rebuilt[name], buffer[name]) for name in names):
         raise CarryError(f"{run_id}'s replay does not come back from its actions here",
                          "let the run finish where it is")
-    carried = dict(checkpoint)
-    carried["buffer"] = {"actions": actions, "position": buffer["position"]}
+    carried_state = dict(checkpoint)
+    carried_state["buffer"] = {"position": buffer["position"]}
 
     def build(target: Path) -> None:
-        _write_state(target / STATE_FILE, carried)
+        _write_state(target, carried_state, actions[None])
         _copy_files(work, target / "partial" / run_id, RUN_FILES)
         (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
             "run", run_id, spec["env_id"], step, [run_id], [spec["seed"]],
             _run_replay_digest(buffer)), indent=1) + "\n")
 
-    final = _finish_pack(store, run_id, build)
+    final = _finish_pack(store, run_id, [run_id], work / CHECKPOINT_FILE, build)
     return Packed(run_id, step, 1, _size(final))
 
 
@@ -272,28 +316,61 @@ def _size(path: Path) -> int:
 
 
 def unfinished(store: Path) -> list[tuple[str, str]]:
-    """(kind, name) of every checkpoint in the store: seed batches, then one-run runs."""
+    """(kind, name) of every checkpoint in the store: seed batches, then one-run runs. A
+    batch member's own directory may still hold a checkpoint of an earlier one-run attempt;
+    the batch's checkpoint is the one that counts, so that one is left out."""
     store = Path(store)
-    found = [("batch", p.parent.name[1:]) for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
-    found += [("run", p.parent.name.removeprefix(".partial-"))
-              for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))]
-    return found
+    batches = [p.parent for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
+    in_batches = {run_id for batch_dir in store.glob(".batch-*")
+                  if (batch_dir / "members.json").is_file()
+                  for run_id in json.loads((batch_dir / "members.json").read_text())}
+    runs = [p.parent.name.removeprefix(".partial-")
+            for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))]
+    return ([("batch", d.name[1:]) for d in batches]
+            + [("run", r) for r in runs if r not in in_batches])
 
 
-def pack_all(store: Path, progress: bool = False) -> tuple[list[Packed], list[str]]:
-    """Carry every checkpoint of the store; the packed ones, and a line per one that could
-    not be carried."""
-    packed, skipped = [], []
-    for kind, name in unfinished(store):
-        pack = pack_batch if kind == "batch" else pack_run
-        try:
-            packed.append(pack(store, name, progress))
-        except CarryError as exc:
-            skipped.append(str(exc))
-        except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
-            skipped.append(f"{name}'s checkpoint has no replay of the SAC family's layout "
-                           f"({type(exc).__name__}: {exc}); fix: let it finish where it is")
-    return packed, skipped
+def prune(store: Path) -> list[str]:
+    """Forget every carried run or batch whose runs have all landed in the store (one that
+    finished on a machine that kept its own checkpoint, say); the names forgotten."""
+    gone = [m["name"] for m in listing(store) if all(_is_done(store, r) for r in m["members"])]
+    for name in gone:
+        discard(store, name)
+    return gone
+
+
+def _pack_one(store: Path, kind: str, name: str, progress: bool) -> Packed | str:
+    """One item of ``pack_all``: what was packed, or the line that says why not."""
+    pack = pack_batch if kind == "batch" else pack_run
+    try:
+        return pack(store, name, progress)
+    except CarryError as exc:
+        return str(exc)
+    except (OSError, ValueError) as exc:  # it landed, or was removed, while we looked
+        return f"{name}: {type(exc).__name__}: {exc}; fix: pack again"
+    except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
+        return (f"{name}'s checkpoint has no replay of the SAC family's layout "
+                f"({type(exc).__name__}: {exc}); fix: let it finish where it is")
+
+
+def pack_all(store: Path, progress: bool = False, workers: int = 1
+             ) -> tuple[list[Packed], list[str]]:
+    """Carry every checkpoint of the store, ``workers`` at a time (rebuilding a replay to
+    check it steps MuJoCo once per transition: minutes for a 300k-step Ant batch); the
+    packed ones, and a line per one that could not be carried."""
+    prune(store)
+    items = unfinished(store)
+    if workers > 1 and len(items) > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(min(workers, len(items)), mp.get_context("spawn")) as pool:
+            results = list(pool.map(_pack_one, [store] * len(items), *zip(*items),
+                                    [False] * len(items)))
+    else:
+        results = [_pack_one(store, kind, name, progress) for kind, name in items]
+    return ([r for r in results if isinstance(r, Packed)],
+            [r for r in results if isinstance(r, str)])
 
 
 # -- unpacking ----------------------------------------------------------------------------
@@ -303,12 +380,27 @@ def carried(store: Path, name: str) -> Path | None:
     return path if (path / MANIFEST_FILE).is_file() else None
 
 
-def _load_carried(path: Path, kind: str) -> tuple[dict[str, Any], dict[str, Any]]:
+def should_unpack(store: Path, name: str, local_checkpoint: Path) -> bool:
+    """Whether carried ``name`` replaces the local checkpoint: where there is none, or where
+    the carried one is further on (another machine trained on and packed it again)."""
+    path = carried(store, name)
+    if path is None:
+        return False
+    if not local_checkpoint.is_file():
+        return True
+    step = json.loads((path / MANIFEST_FILE).read_text())["step"]
+    # mapped, not read: a batch checkpoint's replay is hundreds of MB
+    local = torch.load(local_checkpoint, weights_only=False, map_location="cpu", mmap=True)
+    return step > int(local["step"])
+
+
+def _load_carried(path: Path, kind: str) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
     manifest = json.loads((path / MANIFEST_FILE).read_text())
     if manifest.get("format") != FORMAT or manifest.get("kind") != kind:
         raise CarryError(f"{path} is not a carried {kind} of format {FORMAT}",
                          f"delete {path} to start the {kind} over")
-    return manifest, _read_state(path / STATE_FILE)
+    state, actions = _read_state(path, len(manifest["members"]))
+    return manifest, state, actions
 
 
 ACCEPT_REBUILT = "REPLICATE_CARRY_ACCEPT_REBUILT"  # set to 1: resume on a replay that differs
@@ -340,16 +432,36 @@ def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
         sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
 
 
+def _episodes_in_progress(env_id: str, seeds: list[int], snapshots: list[Any],
+                          obs: np.ndarray) -> np.ndarray:
+    """``obs`` with each env's row replaced by where its episode in progress replays to
+    here: a replay accepted as rebuilt differently has envs that step differently too."""
+    from envs.vector import EnvBatch
+
+    envs = EnvBatch(env_id, seeds)
+    try:
+        replayed = envs.restore(snapshots)
+    finally:
+        envs.close()
+    obs = np.array(obs, copy=True)
+    for k, row in enumerate(replayed):
+        if row is not None:
+            obs[k] = row
+    return obs
+
+
 def unpack_batch(store: Path, ident: str) -> bool:
     """Put carried batch ``ident`` back as ``<store>/.<ident>/checkpoint.pt`` and its
     members' unfinished run directories; False when nothing of it is carried."""
     path = carried(store, ident)
     if path is None:
         return False
-    manifest, state = _load_carried(path, "batch")
-    actions = state["buffer"]["actions"].numpy()
+    manifest, state, actions = _load_carried(path, "batch")
     data = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
     replay = _check_rebuilt(path, manifest, _sha256(data))
+    if replay != "rebuilt bit for bit":
+        state["obs"] = _episodes_in_progress(manifest["env_id"], manifest["seeds"],
+                                             state["envs"], state["obs"])
     state["buffer"] = {"data": torch.from_numpy(data), "position": state["buffer"]["position"]}
     store = Path(store)
     batch_dir = store / f".{ident}"
@@ -367,9 +479,8 @@ def unpack_run(store: Path, run_id: str) -> bool:
     path = carried(store, run_id)
     if path is None:
         return False
-    manifest, state = _load_carried(path, "run")
-    arrays = regenerate_run_replay(manifest["env_id"], manifest["seeds"][0],
-                                   np.asarray(state["buffer"]["actions"]))
+    manifest, state, actions = _load_carried(path, "run")
+    arrays = regenerate_run_replay(manifest["env_id"], manifest["seeds"][0], actions[0])
     replay = _check_rebuilt(path, manifest, _run_replay_digest(arrays))
     state["buffer"] = {**arrays, "position": state["buffer"]["position"]}
     work = Path(store) / f".partial-{run_id}"
@@ -386,7 +497,7 @@ def _write_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 
 def discard(store: Path, name: str) -> None:
-    """Forget carried ``name`` (its run or batch has finished)."""
+    """Forget carried ``name`` (its run or batch has landed)."""
     shutil.rmtree(carry_root(store) / name, ignore_errors=True)
 
 

@@ -323,6 +323,9 @@ def _build_parser() -> argparse.ArgumentParser:
     carry.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     carry.add_argument("--list", action="store_true",
                        help="list what is carried instead of packing")
+    carry.add_argument("--workers", type=int, default=1,
+                       help="checkpoints packed at once (each rebuilds its replay on a core "
+                            "to check it)")
 
     sub.add_parser("algos", help="list algorithms and their default hyperparameters")
     sub.add_parser("envs", help="list environments and their spec table")
@@ -547,9 +550,13 @@ def _cmd_table1(args: argparse.Namespace) -> int:
 
 def _cmd_carry(args: argparse.Namespace) -> int:
     from replicate import carry
+    from replicate.errors import HarnessError
 
     if not args.list:
-        packed, skipped = carry.pack_all(args.store, progress=True)
+        if args.workers < 1:
+            raise HarnessError(f"--workers must be at least 1, got {args.workers}",
+                               "pass --workers 1 or more")
+        packed, skipped = carry.pack_all(args.store, progress=True, workers=args.workers)
         for item in packed:
             print(f"carried {item.name}: step {item.step:,}, {item.members} run(s), "
                   f"{item.bytes / 2**20:.1f} MiB")

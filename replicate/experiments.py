@@ -234,40 +234,43 @@ def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interv
     return failed
 
 
-def carried_batches(missing: list[PreparedRun], store: Path | None
-                    ) -> tuple[list[list[PreparedRun]], list[PreparedRun]]:
-    """The seed batches carried in the store (``replicate.carry``) whose members are all
-    missing, each as the batch it was, and the missing runs left over."""
+def carried_tasks(missing: list[PreparedRun], store: Path | None
+                  ) -> tuple[list[PreparedRun | list[PreparedRun]], list[PreparedRun]]:
+    """The runs and seed batches carried in the store (``replicate.carry``) whose members
+    are all missing, each as it was carried (a batch as the batch it was, a run alone), and
+    the missing runs left over."""
     if store is None:
         return [], list(missing)
     by_id = {p.run_id: p for p in missing}
-    batches = []
+    tasks: list[PreparedRun | list[PreparedRun]] = []
     for manifest in carry.listing(store):
-        if manifest["kind"] == "batch" and all(r in by_id for r in manifest["members"]):
-            batches.append([by_id.pop(r) for r in manifest["members"]])
-    return batches, [p for p in missing if p.run_id in by_id]
+        if all(r in by_id for r in manifest["members"]):
+            members = [by_id.pop(r) for r in manifest["members"]]
+            tasks.append(members if manifest["kind"] == "batch" else members[0])
+    return tasks, [p for p in missing if p.run_id in by_id]
 
 
 def plan_batches(missing: list[PreparedRun], batch: int | None, store: Path | None = None
                  ) -> list[PreparedRun | list[PreparedRun]]:
     """The grid's tasks: runs of an algorithm with a batched trainer grouped, at most
     ``batch`` per group, by everything but their seed; every other run alone. ``batch``
-    None or 1: every run alone. A batch carried in ``store`` resumes as the batch it was,
+    None or 1: every run alone. What is carried in ``store`` resumes as it was carried,
     whatever ``batch`` says."""
     from baselines.registry import batched_trainer
 
-    carried, missing = carried_batches(missing, store)
+    carried, missing = carried_tasks(missing, store)
     if batch is None or batch <= 1:
         return [*carried, *missing]
     groups: dict[str, list[PreparedRun]] = {}
-    tasks: list[PreparedRun | list[PreparedRun]] = []
+    tasks = [t for t in carried if not isinstance(t, list)]
     for p in missing:
         if batched_trainer(p.spec.algo) is None:
             tasks.append(p)
         else:
             groups.setdefault(batch_key(p), []).append(p)
-    batches = carried + [group[i:i + batch] for group in groups.values()
-                         for i in range(0, len(group), batch)]
+    batches = [t for t in carried if isinstance(t, list)]
+    batches += [group[i:i + batch] for group in groups.values()
+                for i in range(0, len(group), batch)]
     # the longest work first, so that the one-run tasks fill the gaps
     return sorted(batches, key=lambda b: -sum(p.spec.total_steps for p in b)) + tasks
 
@@ -444,7 +447,10 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
         return
     tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch,
                          store)
+    asked = {p.run_id for p in missing}
     for manifest in carry.listing(store):
+        if not asked & set(manifest["members"]):
+            continue
         print(f"  carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
               f"(packed {manifest['packed_utc']} on {manifest['cpu_model']}); it resumes "
               "from there" + (" as the batch it was" if manifest["kind"] == "batch" else ""))
@@ -507,6 +513,7 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                                    gpu_workers).count("cuda")
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
+    carry.prune(store)  # what landed elsewhere is carried no more
     tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots), store)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     if env_workers is None:

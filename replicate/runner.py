@@ -189,7 +189,7 @@ def execute(prepared: PreparedRun, store: Path,
             if not is_complete(final_dir):  # another process may have finished it
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
-                    if not (work_dir / CHECKPOINT_FILE).is_file():
+                    if carry.should_unpack(store, prepared.run_id, work_dir / CHECKPOINT_FILE):
                         carry.unpack_run(store, prepared.run_id)  # packed in another sitting
                     try:
                         _train_into(prepared, work_dir, on_steps, checkpoint_interval, device,
@@ -204,8 +204,7 @@ def execute(prepared: PreparedRun, store: Path,
                             "--gpu-workers, or with --device cpu") from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
-                        carry.discard(store, prepared.run_id)
-                        raise
+                        raise  # a carried checkpoint stays: the failure may be this machine's
                 (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
                 carry.discard(store, prepared.run_id)
                 if final_dir.exists():  # a stale incomplete directory of the same address
@@ -411,7 +410,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
                                      "run the same command again")
         batch_dir.mkdir(exist_ok=True)
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
-        if not (batch_dir / CHECKPOINT_FILE).is_file():
+        if carry.should_unpack(store, ident, batch_dir / CHECKPOINT_FILE):
             carry.unpack_batch(store, ident)  # packed in another sitting, maybe elsewhere
         batch_sittings = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
@@ -461,8 +460,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
             shutil.rmtree(batch_dir, ignore_errors=True)
             for work in work_dirs:
                 shutil.rmtree(work, ignore_errors=True)
-            carry.discard(store, ident)
-            raise
+            raise  # a carried checkpoint stays: the failure may be this machine's
         finally:
             for recorder in recorders:
                 recorder.close()
@@ -483,7 +481,8 @@ def execute_batch(members: list[PreparedRun], store: Path,
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
         shutil.rmtree(batch_dir, ignore_errors=True)
-        carry.discard(store, ident)
+        for name in [ident, *(p.run_id for p in members)]:  # and earlier one-run attempts'
+            carry.discard(store, name)
         return BatchOutcome(runs, failed)
     finally:
         for lock_path, handle in locks:

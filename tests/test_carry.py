@@ -40,7 +40,8 @@ def _batch_specs():
     return [prepare(RunSpec("drl-eg", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in (0, 1)]
 
 
-def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tmp_path):
+def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tmp_path,
+                                                                            monkeypatch):
     whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
     execute_batch(_batch_specs(), whole, device="cpu", checkpoint_interval=200)
 
@@ -62,6 +63,16 @@ def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tm
         assert [s["resumed_from_step"] for s in sittings] == [0, 400]
         assert sittings[0]["carried"]["replay"] == "rebuilt bit for bit"
     assert state.name not in {p.name for p in carry.carry_root(second).iterdir()}  # done
+
+    # where the replay rebuilds differently and the user accepts it, the batch resumes too
+    third = tmp_path / "third"
+    shutil.copytree(carry.carry_root(first), carry.carry_root(third))
+    manifest_path = carry.carry_root(third) / packed[0].name / carry.MANIFEST_FILE
+    manifest = json.loads(manifest_path.read_text())
+    manifest_path.write_text(json.dumps({**manifest, "replay_sha256": "0" * 64}))
+    monkeypatch.setenv(carry.ACCEPT_REBUILT, "1")
+    execute_batch(_batch_specs(), third, device="cpu", checkpoint_interval=200)
+    assert _curves(third) == _curves(whole)  # the envs step alike here, after all
 
 
 def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
@@ -142,3 +153,36 @@ def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
     assert (env_id, algo) == (HOPPER, "sac")
     assert "seeds 0, 1 not in the store yet" in why and "seed 1 at step 1,234" in why
     assert "carried" not in absent_cells(specs, "nox -s x")[0][2]  # no store, no carry
+
+
+def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives_way(tmp_path):
+    spec = RunSpec("sac", HOPPER, 6, 700, 350, 1, dict(TINY))
+    first, second = tmp_path / "first", tmp_path / "second"
+    with pytest.raises(_Stop):
+        execute(prepare(spec), first, device="cpu", checkpoint_interval=100,
+                on_steps=_stop_after(250))
+    shutil.copytree(first, second)  # the same store on two machines
+    with pytest.raises(_Stop):  # one trains on and packs again, further on
+        execute(prepare(spec), second, device="cpu", checkpoint_interval=100,
+                on_steps=_stop_after(300))
+    (packed,), _ = carry.pack_all(second)
+    local = first / f".partial-{packed.name}" / carry.CHECKPOINT_FILE
+    assert torch.load(local, weights_only=False)["step"] < packed.step
+    shutil.copytree(carry.carry_root(second), carry.carry_root(first))
+    assert carry.should_unpack(first, packed.name, local)  # the carried one is further on
+    run = execute(prepare(spec), first, device="cpu")
+    assert run.provenance["sittings"][-2]["carried"]["step"] == packed.step
+    assert carry.listing(first) == []  # discarded when the run landed
+    shutil.copytree(carry.carry_root(second), carry.carry_root(first), dirs_exist_ok=True)
+    assert carry.prune(first) == [packed.name] and carry.listing(first) == []
+
+
+def test_carry_packs_several_checkpoints_on_several_workers(tmp_path, capsys):
+    for seed in (7, 8):
+        with pytest.raises(_Stop):
+            execute(prepare(RunSpec("sac", HOPPER, seed, 500, 250, 1, dict(TINY))), tmp_path,
+                    device="cpu", checkpoint_interval=100, on_steps=_stop_after(300))
+    assert main(["carry", "--store", str(tmp_path), "--workers", "0"]) == 2
+    assert "--workers must be at least 1" in capsys.readouterr().err
+    assert main(["carry", "--store", str(tmp_path), "--workers", "2"]) == 0
+    assert sorted(m["seeds"][0] for m in carry.listing(tmp_path)) == [7, 8]
