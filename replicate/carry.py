@@ -79,10 +79,11 @@ def _steps(count: int, what: str, progress: bool) -> Any:
 
 
 def regenerate_batch_replay(env_id: str, seeds: list[int], actions: np.ndarray,
-                            progress: bool = False) -> np.ndarray:
+                            progress: bool = False) -> tuple[np.ndarray, list[Any], np.ndarray]:
     """The stacked replay rows (members, steps, 2 obs + act + 2) that a seed batch's envs
     produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
-    ``baselines.batched.run_stacked_off_policy`` steps them (every member alive)."""
+    ``baselines.batched.run_stacked_off_policy`` steps them (every member alive); with the
+    envs' snapshot and observations where the actions leave them."""
     from baselines.common.stacked import StackedReplay
     from envs.vector import EnvBatch
 
@@ -95,9 +96,10 @@ def regenerate_batch_replay(env_id: str, seeds: list[int], actions: np.ndarray,
             result = envs.step(actions[:, t])
             replay.add(obs, actions[:, t], result.rewards, result.next_obs, result.terminated)
             obs = result.obs
+        snapshot = envs.snapshot()
     finally:
         envs.close()
-    return replay.data[:, :steps].numpy()
+    return replay.data[:, :steps].numpy(), snapshot, obs
 
 
 def regenerate_run_replay(env_id: str, seed: int, actions: np.ndarray,
@@ -205,6 +207,7 @@ def _finish_pack(store: Path, name: str, members: list[str], source: Path,
     carried version whole. A run that landed while it packed is not carried."""
     root = carry_root(store)
     root.mkdir(parents=True, exist_ok=True)
+    _recover(root, name)
     aside = root / f".{name}.packing"
     shutil.rmtree(aside, ignore_errors=True)
     aside.mkdir()
@@ -232,6 +235,17 @@ def _manifest(kind: str, name: str, env_id: str, step: int, members: list[str],
             "git_revision": provenance.git_revision(), "cpu_model": provenance.cpu_model()}
 
 
+def _not_behind(store: Path, name: str, step: int) -> None:
+    """Refuse to pack over a carried version that is as far on or further (another machine
+    trained on and packed it again while this one kept its older checkpoint)."""
+    path = carried(store, name)
+    if path is not None:
+        at = json.loads((path / MANIFEST_FILE).read_text())["step"]
+        if at >= step:
+            raise CarryError(f"{name} is carried at step {at:,} already (its checkpoint "
+                             f"here is at step {step:,})", "nothing to pack")
+
+
 def _load(path: Path) -> dict[str, Any]:
     return torch.load(path, weights_only=False, map_location="cpu")
 
@@ -245,6 +259,7 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     work_dirs = [store / f".partial-{run_id}" for run_id in members]
     env_id = _run_spec(work_dirs[0])["env_id"]
     seeds, step = list(checkpoint["seeds"]), int(checkpoint["step"])
+    _not_behind(store, ident, step)
     if "data" not in checkpoint.get("buffer", {}):
         raise CarryError(f"{ident}'s checkpoint has no stacked replay", "let it finish here")
     data = checkpoint["buffer"]["data"].numpy()
@@ -257,7 +272,7 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     obs_dim = checkpoint["obs"].shape[1]  # a row is (s, a, r, s', terminated)
     act_dim = data.shape[2] - 2 - 2 * obs_dim
     actions = np.ascontiguousarray(data[:, :, obs_dim:obs_dim + act_dim])
-    rebuilt = regenerate_batch_replay(env_id, seeds, actions, progress)
+    rebuilt, _, _ = regenerate_batch_replay(env_id, seeds, actions, progress)
     if not np.array_equal(rebuilt, data):
         raise CarryError(f"{ident}'s replay does not come back from its actions here",
                          "let the batch finish where it is")
@@ -284,6 +299,7 @@ def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
     checkpoint = _load(work / CHECKPOINT_FILE)
     spec = _run_spec(work)
     step, buffer = int(checkpoint["step"]), checkpoint.get("buffer")
+    _not_behind(store, run_id, step)
     names = ("observations", "actions", "rewards", "next_observations", "terminated")
     if not isinstance(buffer, dict) or any(name not in buffer for name in names):
         raise CarryError(f"{run_id}'s checkpoint has no plain replay buffer ({spec['algo']})",
@@ -321,8 +337,7 @@ def unfinished(store: Path) -> list[tuple[str, str]]:
     the batch's checkpoint is the one that counts, so that one is left out."""
     store = Path(store)
     batches = [p.parent for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
-    in_batches = {run_id for batch_dir in store.glob(".batch-*")
-                  if (batch_dir / "members.json").is_file()
+    in_batches = {run_id for batch_dir in batches if (batch_dir / "members.json").is_file()
                   for run_id in json.loads((batch_dir / "members.json").read_text())}
     runs = [p.parent.name.removeprefix(".partial-")
             for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))]
@@ -331,9 +346,10 @@ def unfinished(store: Path) -> list[tuple[str, str]]:
 
 
 def prune(store: Path) -> list[str]:
-    """Forget every carried run or batch whose runs have all landed in the store (one that
-    finished on a machine that kept its own checkpoint, say); the names forgotten."""
-    gone = [m["name"] for m in listing(store) if all(_is_done(store, r) for r in m["members"])]
+    """Forget every carried run or batch of which a run has landed in the store (it finished
+    on a machine that kept its own checkpoint, say; a batch resumes only with all its
+    members); the names forgotten."""
+    gone = [m["name"] for m in listing(store) if any(_is_done(store, r) for r in m["members"])]
     for name in gone:
         discard(store, name)
     return gone
@@ -346,11 +362,11 @@ def _pack_one(store: Path, kind: str, name: str, progress: bool) -> Packed | str
         return pack(store, name, progress)
     except CarryError as exc:
         return str(exc)
-    except (OSError, ValueError) as exc:  # it landed, or was removed, while we looked
-        return f"{name}: {type(exc).__name__}: {exc}; fix: pack again"
     except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
         return (f"{name}'s checkpoint has no replay of the SAC family's layout "
                 f"({type(exc).__name__}: {exc}); fix: let it finish where it is")
+    except Exception as exc:  # it landed or was removed while we looked, or will not load
+        return f"{name}: {type(exc).__name__}: {exc}; fix: pack again, or let it finish"
 
 
 def pack_all(store: Path, progress: bool = False, workers: int = 1
@@ -375,7 +391,15 @@ def pack_all(store: Path, progress: bool = False, workers: int = 1
 
 # -- unpacking ----------------------------------------------------------------------------
 
+def _recover(root: Path, name: str) -> None:
+    """Put back a carried directory that a kill mid-swap left as ``.<name>.old``."""
+    old = root / f".{name}.old"
+    if not (root / name).exists() and (old / MANIFEST_FILE).is_file():
+        os.replace(old, root / name)
+
+
 def carried(store: Path, name: str) -> Path | None:
+    _recover(carry_root(store), name)
     path = carry_root(store) / name
     return path if (path / MANIFEST_FILE).is_file() else None
 
@@ -417,7 +441,8 @@ def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
         f"the carried {manifest['kind']} {manifest['name']} did not rebuild its replay on this "
         f"machine (packed on {manifest['cpu_model']}; the envs stepped differently here)",
         f"resume it on a machine like that one, set {ACCEPT_REBUILT}=1 to resume on the "
-        f"replay as rebuilt here, or delete {path} to start it over")
+        f"replay as rebuilt here, or delete {path} (the run then resumes from a checkpoint "
+        "of this store's own, or starts over)")
 
 
 def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
@@ -432,24 +457,6 @@ def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
         sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
 
 
-def _episodes_in_progress(env_id: str, seeds: list[int], snapshots: list[Any],
-                          obs: np.ndarray) -> np.ndarray:
-    """``obs`` with each env's row replaced by where its episode in progress replays to
-    here: a replay accepted as rebuilt differently has envs that step differently too."""
-    from envs.vector import EnvBatch
-
-    envs = EnvBatch(env_id, seeds)
-    try:
-        replayed = envs.restore(snapshots)
-    finally:
-        envs.close()
-    obs = np.array(obs, copy=True)
-    for k, row in enumerate(replayed):
-        if row is not None:
-            obs[k] = row
-    return obs
-
-
 def unpack_batch(store: Path, ident: str) -> bool:
     """Put carried batch ``ident`` back as ``<store>/.<ident>/checkpoint.pt`` and its
     members' unfinished run directories; False when nothing of it is carried."""
@@ -457,11 +464,10 @@ def unpack_batch(store: Path, ident: str) -> bool:
     if path is None:
         return False
     manifest, state, actions = _load_carried(path, "batch")
-    data = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
+    data, envs, obs = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
     replay = _check_rebuilt(path, manifest, _sha256(data))
-    if replay != "rebuilt bit for bit":
-        state["obs"] = _episodes_in_progress(manifest["env_id"], manifest["seeds"],
-                                             state["envs"], state["obs"])
+    if replay != "rebuilt bit for bit":  # the envs go on from where they stepped here
+        state["envs"], state["obs"] = envs, obs
     state["buffer"] = {"data": torch.from_numpy(data), "position": state["buffer"]["position"]}
     store = Path(store)
     batch_dir = store / f".{ident}"
@@ -506,5 +512,7 @@ def listing(store: Path) -> list[dict[str, Any]]:
     root = carry_root(store)
     if not root.is_dir():
         return []
-    return [json.loads((p / MANIFEST_FILE).read_text())
-            for p in sorted(root.iterdir()) if (p / MANIFEST_FILE).is_file()]
+    for old in root.glob(".*.old"):
+        _recover(root, old.name[1:].removesuffix(".old"))
+    return [json.loads((p / MANIFEST_FILE).read_text()) for p in sorted(root.iterdir())
+            if not p.name.startswith(".") and (p / MANIFEST_FILE).is_file()]

@@ -449,11 +449,17 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
                          store)
     asked = {p.run_id for p in missing}
     for manifest in carry.listing(store):
-        if not asked & set(manifest["members"]):
+        members = set(manifest["members"])
+        if not asked & members:
             continue
-        print(f"  carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
-              f"(packed {manifest['packed_utc']} on {manifest['cpu_model']}); it resumes "
-              "from there" + (" as the batch it was" if manifest["kind"] == "batch" else ""))
+        where = (f"carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
+                 f"(packed {manifest['packed_utc']} on {manifest['cpu_model']})")
+        if members <= asked:
+            print(f"  {where}; it resumes from there"
+                  + (" as the batch it was" if manifest["kind"] == "batch" else ""))
+        else:
+            print(f"  {where}: {len(members - asked)} of its runs are not in this plan, so "
+                  "it does not resume here; its runs in the plan start over")
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
     longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)
@@ -690,20 +696,19 @@ def absent_cells(specs: list[RunSpec], command: str, store: Path | None = None
                   (carry.listing(store) if store is not None else [])
                   for run_id in manifest["members"]}
     seeds: dict[tuple[str, str], list[int]] = {}
-    steps: dict[tuple[str, str], dict[int, int]] = {}
+    steps: dict[tuple[str, str], list[tuple[int, int]]] = {}
     for spec in specs:
         cell = (spec.env_id, spec.algo)
         seeds.setdefault(cell, []).append(spec.seed)
         step = carried_at.get(prepare(spec).run_id) if carried_at else None
         if step is not None:
-            steps.setdefault(cell, {})[spec.seed] = step
+            steps.setdefault(cell, []).append((spec.seed, step))
     lines = []
     for cell, lacking in seeds.items():
         one = len(lacking) == 1
         carried_note = ""
         if cell in steps:
-            at = ", ".join(f"seed {seed} at step {step:,}"
-                           for seed, step in sorted(steps[cell].items()))
+            at = ", ".join(f"seed {seed} at step {step:,}" for seed, step in sorted(steps[cell]))
             where = portable_path(carry.carry_root(store))
             carried_note = f"; carried unfinished in {where}: {at}"
         lines.append((*cell, f"{'seed' if one else 'seeds'} {', '.join(map(str, sorted(lacking)))} "
@@ -780,6 +785,12 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
           f"training {len(missing)} runs, {total_steps:,} env steps on the Ray cluster at "
           f"{address} ({cluster_cpus} CPUs); estimated "
           f"{estimate_minutes(missing, store, cluster_cpus):.0f} min", flush=True)
+    asked = {p.run_id for p in missing}
+    carried_batches = [m["name"] for m in carry.listing(store)
+                       if m["kind"] == "batch" and asked & set(m["members"])]
+    if carried_batches:
+        print(f"note: {', '.join(carried_batches)} (carried seed batches) resume with the "
+              "local executor only; on Ray their runs start over", flush=True)
     started = time.time()
     failed: list[tuple[str, str]] = []
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)

@@ -481,7 +481,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
         shutil.rmtree(batch_dir, ignore_errors=True)
-        for name in [ident, *(p.run_id for p in members)]:  # and earlier one-run attempts'
+        for name in [ident, *(run.path.name for run in runs)]:  # and landed members' one-runs
             carry.discard(store, name)
         return BatchOutcome(runs, failed)
     finally:

@@ -170,6 +170,9 @@ def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives
     assert torch.load(local, weights_only=False)["step"] < packed.step
     shutil.copytree(carry.carry_root(second), carry.carry_root(first))
     assert carry.should_unpack(first, packed.name, local)  # the carried one is further on
+    again, skipped = carry.pack_all(first)  # nor does packing put the older one over it
+    assert again == [] and "already" in skipped[0]
+    assert carry.listing(first)[0]["step"] == packed.step
     run = execute(prepare(spec), first, device="cpu")
     assert run.provenance["sittings"][-2]["carried"]["step"] == packed.step
     assert carry.listing(first) == []  # discarded when the run landed
@@ -186,3 +189,14 @@ def test_carry_packs_several_checkpoints_on_several_workers(tmp_path, capsys):
     assert "--workers must be at least 1" in capsys.readouterr().err
     assert main(["carry", "--store", str(tmp_path), "--workers", "2"]) == 0
     assert sorted(m["seeds"][0] for m in carry.listing(tmp_path)) == [7, 8]
+
+
+def test_a_kill_mid_swap_leaves_the_last_carried_version_found(tmp_path):
+    root = carry.carry_root(tmp_path)
+    for name in (".run-a.old", ".run-b.packing"):  # the swap's two sides, as a kill leaves them
+        (root / name).mkdir(parents=True)
+        (root / name / carry.MANIFEST_FILE).write_text(json.dumps(
+            {"format": carry.FORMAT, "kind": "run", "name": name[1:6], "step": 1,
+             "members": [name[1:6]]}))
+    assert [m["name"] for m in carry.listing(tmp_path)] == ["run-a"]  # put back; b unfinished
+    assert carry.carried(tmp_path, "run-a") is not None and carry.carried(tmp_path, "run-b") is None
