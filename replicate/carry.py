@@ -507,6 +507,16 @@ def discard(store: Path, name: str) -> None:
     shutil.rmtree(carry_root(store) / name, ignore_errors=True)
 
 
+def resumable_steps(store: Path, run_ids: set[str], batches: bool = True) -> dict[str, int]:
+    """Each of ``run_ids`` that resumes from a carried checkpoint, with the step it resumes
+    at: the members of every carry whose runs are all among ``run_ids`` (a carry resumes
+    only whole, ``replicate.experiments.carried_tasks``); ``batches`` False: of carried
+    runs only (an executor that trains one run per task starts a carried batch over)."""
+    return {run_id: int(manifest["step"]) for manifest in listing(store)
+            if set(manifest["members"]) <= run_ids
+            and (batches or manifest["kind"] != "batch") for run_id in manifest["members"]}
+
+
 def listing(store: Path) -> list[dict[str, Any]]:
     """The manifests of everything carried in the store."""
     root = carry_root(store)

@@ -316,15 +316,20 @@ def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], f
 
 def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
                      workers: int, rates: dict[tuple[str, str], float] | None = None,
-                     on_gpu: bool = False) -> float:
+                     on_gpu: bool = False, carried_batches: bool = True) -> float:
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
     store (else the same algorithm's slowest env, else the env's slowest algorithm, else a
-    guess; ``rates``: ``measured_rates(store, on_gpu)`` read already). A process is taken
+    guess; ``rates``: ``measured_rates(store, on_gpu)`` read already), less the steps that
+    runs carried in ``store`` resume from (of carried runs only with ``carried_batches``
+    False: an executor of one run per task starts a carried batch over). A process is taken
     to step as fast whatever its batch's size: about so on CPU, where the products
     dominate; a GPU batch steps faster the larger it is, so rates from large GPU batches
     make smaller batches and single runs look faster than they are."""
     rates = measured_rates(store, on_gpu) if rates is None else rates
+    # a carried run resumes at its carried step: only the rest is trained here
+    done = carry.resumable_steps(store, {r for task in tasks for r in _task_ids(task)},
+                                 batches=carried_batches)
     by_algo: dict[str, list[float]] = {}
     by_env: dict[str, list[float]] = {}
     for (algo, env_id), rate in rates.items():
@@ -340,7 +345,7 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
         rate = (rates.get((p.spec.algo, p.spec.env_id))
                 or min(by_algo.get(p.spec.algo) or by_env.get(p.spec.env_id)
                        or [DEFAULT_STEPS_PER_S]))
-        seconds += sum(m.spec.total_steps for m in members) / rate
+        seconds += sum(m.spec.total_steps - done.get(m.run_id, 0) for m in members) / rate
     return seconds / workers / 60
 
 
@@ -436,10 +441,13 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     for (env_id, algo, settings), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
         steps = sum(p.spec.total_steps for p in runs)
+        carried = sum(carry.resumable_steps(store, {p.run_id for p in runs}).values())
         point = f"  ({settings})" if settings else ""
+        point += f"  ({carried:,} of them carried)" if carried else ""
         print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
               f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process{point}")
     total = sum(p.spec.total_steps for p in missing)
+    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     if where != "local":  # the cluster's size is not known without connecting to it
         print(f"  total {total:,} env steps: about "
               f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
@@ -470,8 +478,9 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
         how = (f"{batched} run{'s' if batched > 1 else ''} in {len(batches)} seed "
                f"batch{'es' if len(batches) > 1 else ''}"
                + (f", {alone} run{'s' if alone > 1 else ''} one per process" if alone else ""))
-    print(f"  total {total:,} env steps: about {minutes:,.0f} min on {used} local worker(s), "
-          f"{how}")
+    print(f"  total {total:,} env steps"
+          + (f" ({total - carried:,} to train, the rest carried)" if carried else "")
+          + f": about {minutes:,.0f} min on {used} local worker(s), {how}")
 
 
 def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
@@ -533,8 +542,10 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     batches = [t for t in tasks if isinstance(t, list)]
     batched_note = (f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)"
                     if batches else "")
+    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
+    carried_note = f" ({carried:,} of them carried)" if carried else ""
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-          f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps on "
+          f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps{carried_note} on "
           f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
           f"estimated {estimate_minutes(tasks, store, workers, on_gpu=on_gpu > 0):.0f} min "
           "on this machine "
@@ -784,7 +795,8 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
     print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
           f"training {len(missing)} runs, {total_steps:,} env steps on the Ray cluster at "
           f"{address} ({cluster_cpus} CPUs); estimated "
-          f"{estimate_minutes(missing, store, cluster_cpus):.0f} min", flush=True)
+          f"{estimate_minutes(missing, store, cluster_cpus, carried_batches=False):.0f} min",
+          flush=True)
     asked = {p.run_id for p in missing}
     carried_batches = [m["name"] for m in carry.listing(store)
                        if m["kind"] == "batch" and asked & set(m["members"])]

@@ -140,6 +140,29 @@ def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_
     assert plan_batches(runs[:2], 3, tmp_path)[0] == runs[:2]  # a member is done: not carried
 
 
+def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, capsys):
+    from replicate.experiments import estimate_minutes, print_plan
+
+    runs = [prepare(RunSpec("sac", HOPPER, seed, 6000, 3000, 1, dict(TINY))) for seed in range(3)]
+    whole = estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1)
+    entry = carry.carry_root(tmp_path) / "batch-z"
+    entry.mkdir(parents=True)
+    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
+        {"format": carry.FORMAT, "kind": "batch", "name": "batch-z", "step": 4500,
+         "members": [runs[0].run_id, runs[1].run_id], "packed_utc": "then", "cpu_model": "x"}))
+    # the batch has 1,500 of its 6,000 steps per member left; the third run all 6,000
+    assert estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1) == pytest.approx(
+        whole * (2 * 1500 + 6000) / 18000)
+    # a carry resumes only whole, and on Ray a carried batch starts over
+    assert estimate_minutes([runs[0], runs[2]], tmp_path, workers=1) == pytest.approx(
+        whole * 2 / 3)
+    assert estimate_minutes(runs, tmp_path, workers=1, carried_batches=False) == whole
+    print_plan(runs, runs, tmp_path, workers=1)
+    out = capsys.readouterr().out
+    assert "18,000 env steps  " in out and "(9,000 of them carried)" in out
+    assert "total 18,000 env steps (9,000 to train, the rest carried)" in out
+
+
 def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
     from replicate.experiments import absent_cells
 
