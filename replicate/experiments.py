@@ -450,7 +450,8 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     if where != "local":  # the cluster's size is not known without connecting to it
         print(f"  total {total:,} env steps: about "
-              f"{estimate_minutes(missing, store, 1, rates):,.0f} process-minutes on "
+              f"{estimate_minutes(missing, store, 1, rates, carried_batches=False):,.0f} "
+              "process-minutes on "
               f"{where} CPUs")
         return
     tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch,
