@@ -447,7 +447,6 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
         print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
               f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process{point}")
     total = sum(p.spec.total_steps for p in missing)
-    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     if where != "local":  # the cluster's size is not known without connecting to it
         print(f"  total {total:,} env steps: about "
               f"{estimate_minutes(missing, store, 1, rates, carried_batches=False):,.0f} "
@@ -469,6 +468,7 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
         else:
             print(f"  {where}: {len(members - asked)} of its runs are not in this plan, so "
                   "it does not resume here; its runs in the plan start over")
+    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
     longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)
