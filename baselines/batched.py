@@ -33,7 +33,7 @@ import torch
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkpoint,
-                                         save_checkpoint)
+                                         save_checkpoint, stop_if_past)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
@@ -66,6 +66,7 @@ class BatchContext:
     on_member_failed: Callable[[int, str], None] = field(default=lambda k, reason: None)
     checkpoint_path: Path | None = None
     checkpoint_interval: int = 0
+    deadline: float | None = None  # as TrainContext.deadline, for the batch as a whole
 
     @property
     def seeds(self) -> list[int]:
@@ -848,9 +849,10 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             if not alive.any():
                 break
             if bctx.checkpoint_path is not None and step < total_steps \
-                    and due(step, last_checkpoint, bctx.checkpoint_interval):
+                    and due(step, last_checkpoint, bctx.checkpoint_interval, bctx.deadline):
                 save(step)
                 last_checkpoint = step
+                stop_if_past(bctx.deadline, step)
     finally:
         envs.close()
         eval_envs.close()

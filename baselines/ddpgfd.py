@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
-                                         save_checkpoint)
+                                         save_checkpoint, stop_if_past)
 from baselines.common.context import DemoSet, EvalPoint, TrainContext
 from baselines.common.device import flush_denormals
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -261,12 +261,13 @@ def _train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
         ctx.on_steps(1)
         if terminated or truncated:
             if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                    and due(step, last_checkpoint, ctx.checkpoint_interval):
+                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline):
                 save_checkpoint(ctx.checkpoint_path, {
                     "step": step, "agent": agent.state_dict(), "buffer": buffer.state_dict(),
                     "rng": rng, "curve": curve, "env_rng": env_rng_state(env),
                     "eval_env_rng": env_rng_state(eval_env)})
                 last_checkpoint = step
+                stop_if_past(ctx.deadline, step)
             obs, _ = env.reset()
     env.close()
     eval_env.close()

@@ -22,7 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
-                                         save_checkpoint)
+                                         save_checkpoint, stop_if_past)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import mlp
@@ -237,7 +237,8 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
             ctx.on_steps(1)
             if episode_over:
                 if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                        and due(step, last_checkpoint, ctx.checkpoint_interval):
+                        and due(step, last_checkpoint, ctx.checkpoint_interval,
+                                ctx.deadline):
                     save_checkpoint(ctx.checkpoint_path, {
                         "step": step, "rollout": rollout, "collected": collected,
                         "agent": agent.checkpoint_state(),
@@ -246,6 +247,7 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
                         "batch_rng": batch_rng, "curve": curve, "env_rng": env_rng_state(env),
                         "eval_env_rng": env_rng_state(eval_env)})
                     last_checkpoint = step
+                    stop_if_past(ctx.deadline, step)
                 raw_obs, _ = env.reset()
 
         obs_buf, next_obs_buf, act_buf, logp_buf, rew_buf, term_buf, over_buf = (

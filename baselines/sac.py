@@ -26,7 +26,8 @@ from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.checkpoint import (CheckpointDeviceError, due, env_rng_state,
-                                         load_checkpoint, restore_env_rng, save_checkpoint)
+                                         load_checkpoint, restore_env_rng, save_checkpoint,
+                                         stop_if_past)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep, make_adam
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns, evaluate
@@ -313,9 +314,10 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         ctx.on_steps(1)
         if terminated or truncated:
             if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                    and due(step, last_checkpoint, ctx.checkpoint_interval):
+                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline):
                 save(step)
                 last_checkpoint = step
+                stop_if_past(ctx.deadline, step)
             obs, _ = env.reset()
             explorer.episode_start()
     env.close()

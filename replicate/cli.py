@@ -5,15 +5,95 @@ from __future__ import annotations
 import argparse
 import ast
 import os
+import re
+import shlex
 import sys
+import time
 from pathlib import Path
+
+from replicate.profiles import PROFILES
 
 # The committed run store; smoke-profile runs (numbers that mean nothing) go to their own.
 DEFAULT_STORE = Path("runs")
 SMOKE_STORE = Path("runs-smoke")
-PROFILE_NAMES = ("smoke", "quick", "reduced", "paper")  # replicate.profiles.PROFILES (tested)
+PROFILE_NAMES = tuple(PROFILES)
 STORE_HELP = ("run store directory (default: $REPLICATE_STORE, else runs/, the committed "
               "store, or runs-smoke/ for the smoke profile)")
+# Exit status of a command stopped at its --time-limit (sysexits' EX_TEMPFAIL: try again),
+# so that a job script can tell "resume me" from success and from failure.
+TIME_LIMIT_EXIT = 75
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """States an option's default once: appended only where its help does not already say
+    it and there is one to state (ArgumentDefaultsHelpFormatter appends "(default: None)"
+    even after a help that names its own default)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if ("default" in text.lower() or not action.option_strings
+                or action.default in (None, False, [], argparse.SUPPRESS)):
+            return text
+        return text + " (default: %(default)s)"
+
+
+def _profile_help(lead: str = "budget profile") -> str:
+    """Every profile with its description, for the --profile options."""
+    described = [f"{name}: {profile.summary}"
+                 + ("; its numbers mean nothing." if not profile.meaningful else ".")
+                 for name, profile in PROFILES.items()]
+    return f"{lead}. " + " ".join(described)
+
+
+_DURATION = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*([hms]?)")
+_UNIT_SECONDS = {"h": 3600.0, "m": 60.0, "s": 1.0, "": 1.0}
+
+
+def parse_time_limit(text: str) -> float:
+    """``90m``, ``2h``, ``1h30m``, ``45s`` or plain seconds (``5400``) as seconds; anything
+    else, zero or negative is refused with the fix."""
+    from replicate.errors import HarnessError
+
+    cleaned = text.strip().lower()
+    negative = cleaned.startswith("-")
+    cleaned = cleaned.removeprefix("-").strip()
+    pos, seconds, parts = 0, 0.0, 0
+    while pos < len(cleaned):
+        match = _DURATION.match(cleaned, pos)
+        if match is None:
+            break
+        seconds += float(match.group(1)) * _UNIT_SECONDS[match.group(2)]
+        pos, parts = match.end(), parts + 1
+        while pos < len(cleaned) and cleaned[pos] == " ":
+            pos += 1
+    if not parts or pos != len(cleaned):
+        raise HarnessError(f"--time-limit: cannot read '{text}' as a duration",
+                           "write it like 90m, 2h, 1h30m or 5400 (seconds)")
+    if negative or seconds <= 0:
+        raise HarnessError(f"--time-limit must be positive, got '{text}'",
+                           "pass a duration like 90m or 2h, or leave the option out")
+    return seconds
+
+
+def _joined_time_limit(argv: list[str]) -> list[str]:
+    """``--time-limit -5m`` as ``--time-limit=-5m``: argparse takes a value that starts with
+    '-' for an option and answers with its usage; joined, the limit's own check says on one
+    line what is wrong with it."""
+    joined: list[str] = []
+    for arg in argv:
+        if joined and joined[-1] == "--time-limit" and arg.startswith("-"):
+            joined[-1] = f"--time-limit={arg}"
+        else:
+            joined.append(arg)
+    return joined
+
+
+def _add_time_limit_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--time-limit", default=None, metavar="DURATION",
+                        help="stop cleanly after this long (90m, 2h, 1h30m, or seconds): "
+                             "finished runs are kept, running ones checkpoint at their next "
+                             "episode end and stop, the rest do not start; the same command "
+                             f"resumes them. Exit status {TIME_LIMIT_EXIT}; no limit by default")
 
 
 def default_store(profile: str | None) -> Path:
@@ -99,7 +179,7 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Train one run (algorithm x env x seed x budget) into the run store, "
                     "with a progress bar. A run whose resolved spec is already complete in "
                     "the store is not trained again.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     train.add_argument("--algo", required=True,
                        help="algorithm name; `python -m replicate algos` lists them")
     train.add_argument("--env", required=True,
@@ -128,7 +208,7 @@ def _build_parser() -> argparse.ArgumentParser:
     demos = sub.add_parser(
         "demos", help="make a demonstration file from the harness's own expert",
         description="Roll out the expert of an env and save (s, a) pairs with provenance.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     which = demos.add_mutually_exclusive_group(required=True)
     which.add_argument("--env", help="environment id")
     which.add_argument("--all", action="store_true",
@@ -145,7 +225,7 @@ def _build_parser() -> argparse.ArgumentParser:
                     "started again, it resumes from the last checkpoint. The policy with the "
                     "best evaluation is exported, with its provenance, to the package's "
                     "expert file, from which `demos` rolls out demonstrations.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     expert.add_argument("--env", required=True, help="environment id, e.g. Hopper-v5")
     expert.add_argument("--steps", type=int, default=1_000_000,
                         help="training budget in env steps (the SAC paper's 1M)")
@@ -167,7 +247,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="do not train; export the best policy found so far")
     expert.add_argument("--seeds", type=_seed_list, default=None,
                         help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and "
-                             "keep the best member; not resumed (meant for a lent GPU)")
+                             "keep the best member; not resumed (meant for a GPU)")
     expert.add_argument("--minutes", type=float, default=None,
                         help="with --seeds: stop after this many minutes of training")
 
@@ -175,10 +255,9 @@ def _build_parser() -> argparse.ArgumentParser:
         "fig3", help="train what Fig. 3 needs and write its HTML report",
         description="Run the Fig. 3 grid for a profile (only runs missing from the store are "
                     "trained), then write the self-contained HTML report.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     fig3.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help="budget profile: smoke (seconds, numbers mean nothing), quick "
-                           "(reduced replication, under an hour on 2 cores), paper")
+                      help=_profile_help())
     fig3.add_argument("--seeds", type=int, default=None,
                       help="number of seeds (default: the profile's)")
     fig3.add_argument("--workers", type=int, default=None,
@@ -193,6 +272,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig3.add_argument("--checkpoint-interval", type=int, default=10_000,
                       help="env steps between checkpoints of each run (0: none); an "
                            "interrupted figure resumes its unfinished runs from them")
+    _add_time_limit_argument(fig3)
     fig3.add_argument("--out", type=Path, default=None,
                       help="report directory (default: reports/fig3 for quick, "
                            "reports/<profile>/fig3 otherwise)")
@@ -203,9 +283,9 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Train SAC and DRL-EG on the same seeds (identical initial weights) on "
                     "Ant-v5, or --env, and write reports/fig4/index.html: one panel per "
                     "seed, paired differences, claim 5.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     fig4.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help="budget profile")
+                      help=_profile_help())
     fig4.add_argument("--env", default="Ant-v5", help="environment (the paper's is Ant-v5)")
     fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
     fig4.add_argument("--workers", type=int, default=None,
@@ -224,6 +304,7 @@ def _build_parser() -> argparse.ArgumentParser:
     fig4.add_argument("--dry-run", action="store_true",
                       help="print the runs that would train, with their env steps and "
                            "estimated minutes; train and write nothing")
+    _add_time_limit_argument(fig4)
 
     ablate = sub.add_parser(
         "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
@@ -231,9 +312,9 @@ def _build_parser() -> argparse.ArgumentParser:
                     "per point, at the Fig. 3 profile's budget and seeds, and write "
                     "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
                     "workers can share one --storage.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     ablate.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                        help="budget profile (as for fig3)")
+                        help=_profile_help())
     ablate.add_argument("--seeds", type=int, default=None,
                         help="number of seeds (default: the profile's)")
     ablate.add_argument("--thresholds", type=float, nargs="+", default=None,
@@ -263,6 +344,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="print the runs the whole sweep would train (SAC and every "
                              "point), with their env steps and estimated minutes; train and "
                              "write nothing")
+    _add_time_limit_argument(ablate)
 
     rlfd = sub.add_parser(
         "compare-rlfd", help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
@@ -270,10 +352,10 @@ def _build_parser() -> argparse.ArgumentParser:
                     "profile's tasks and write reports/rlfd/index.html: normalised scores, IQM, "
                     "probability of improvement, performance profiles, sample-efficiency "
                     "curves and a verdict per method and task.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     rlfd.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help="budget profile: quick is MountainCar; reduced adds the sparse "
-                           "dm-control tasks, Hopper and Ant")
+                      help=_profile_help("budget profile (here quick is MountainCar; reduced "
+                                         "adds the sparse dm-control tasks, Hopper and Ant)"))
     rlfd.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
     rlfd.add_argument("--workers", type=int, default=None,
                       help="parallel training processes (default: one per core)")
@@ -285,6 +367,7 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="env steps between checkpoints of a run")
     _add_device_argument(rlfd, grid=True)
     _add_cell_arguments(rlfd)
+    _add_time_limit_argument(rlfd)
 
     report = sub.add_parser(
         "report", help="rebuild reports from the run store without training",
@@ -292,10 +375,11 @@ def _build_parser() -> argparse.ArgumentParser:
                     "ablation, Table 1) from the runs already in the store; nothing is trained. "
                     "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
                     "are when the store holds none of their runs.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     report.add_argument("--profile", default=None, choices=PROFILE_NAMES,
-                        help="which profile's reports to rebuild (default: every profile but "
-                             "smoke whose runs are in the store)")
+                        help=_profile_help("which profile's reports to rebuild (default: "
+                                           "every profile but smoke whose runs are in the "
+                                           "store)"))
     report.add_argument("--seeds", type=int, default=None,
                         help="number of seeds (default: the profile's)")
     report.add_argument("--store", type=Path, default=None, help=STORE_HELP)
@@ -308,7 +392,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "table1", help="write Table 1 (env dims, paper beside harness, demonstrations)",
         description="Write reports/table1/index.html from the environment table, checked "
                     "against the live envs, and the committed demonstration files.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     table1.add_argument("--out", type=Path, default=Path("reports/table1"),
                         help="report directory")
 
@@ -317,9 +401,9 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Pack every checkpoint of the store's unfinished runs and seed batches "
                     "into <store>/carry/ without its replay buffer (rebuilt from the actions "
                     "when unpacked, and checked against its SHA-256), so that it can be "
-                    "committed and resumed by the same command in a later sitting on another "
-                    "machine. Training may go on while it packs.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "committed and resumed by the same command later, on this machine or "
+                    "another. Training may go on while it packs.",
+        formatter_class=_HelpFormatter)
     carry.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     carry.add_argument("--list", action="store_true",
                        help="list what is carried instead of packing")
@@ -603,13 +687,25 @@ COMMANDS = {"compare-rlfd": _cmd_rlfd, "train": _cmd_train, "demos": _cmd_demos,
 
 
 def main(argv: list[str] | None = None) -> int:
-    from replicate.errors import HarnessError
+    from replicate.errors import HarnessError, TimeLimitStop
 
+    argv = _joined_time_limit(sys.argv[1:] if argv is None else list(argv))
     args = _build_parser().parse_args(argv)
     if getattr(args, "store", "absent") is None:
         args.store = default_store(getattr(args, "profile", None))
     try:
-        return COMMANDS[args.command](args)
+        if getattr(args, "time_limit", None) is None:
+            return COMMANDS[args.command](args)
+        limit = parse_time_limit(args.time_limit)  # before anything is trained
+        from replicate.experiments import time_limit
+
+        with time_limit(time.time() + limit):
+            return COMMANDS[args.command](args)
+    except TimeLimitStop as stop:
+        print(f"time limit reached ({args.time_limit}): {stop}; run the same command again "
+              f"to resume: {shlex.join(['python', '-m', 'replicate', *argv])}",
+              file=sys.stderr)
+        return TIME_LIMIT_EXIT
     except HarnessError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -18,3 +18,9 @@ class HarnessError(Exception):
 
 class DemoError(HarnessError):
     """A demonstration file that cannot be used."""
+
+
+class TimeLimitStop(Exception):
+    """A command stopped at its --time-limit: finished runs are kept, unfinished ones
+    checkpointed, and the same command resumes them. Not a HarnessError: the input was fine
+    and nothing failed."""

@@ -7,6 +7,7 @@ budgets and is meant for a cluster or a GPU machine.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import multiprocessing as mp
 import os
@@ -14,15 +15,16 @@ import queue
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
+from baselines.common.checkpoint import TimeLimitReached, past
 from baselines.common.device import worker_devices
 from replicate import carry
 from replicate.claims import PAPER_FIG4_SEEDS
-from replicate.errors import HarnessError
+from replicate.errors import HarnessError, TimeLimitStop
 from replicate.provenance import portable_path
 from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
                               batch_key, execute, execute_batch, is_complete, load_run,
@@ -196,6 +198,24 @@ _progress: Any = None  # a worker's end of the step-count queue, set when the wo
 _device = "cpu"  # the worker's device, taken from the grid's list when the worker starts
 
 
+# The command's time limit as a wall-clock deadline (time.time()), set for a whole command
+# by ``time_limit``: every grid the command trains (a sweep trains several) stops there.
+_deadline: float | None = None
+
+
+@contextlib.contextmanager
+def time_limit(deadline: float | None) -> Iterator[None]:
+    """Within this block every ``run_grid`` stops at ``deadline`` (None: no limit): runs
+    that finished are kept, running ones checkpoint at their next chance and stop, the
+    others do not start, and ``TimeLimitStop`` says so."""
+    global _deadline
+    before, _deadline = _deadline, deadline
+    try:
+        yield
+    finally:
+        _deadline = before
+
+
 def _init_worker(progress: Any, devices: Any) -> None:
     global _progress, _device
     _progress = progress
@@ -203,9 +223,14 @@ def _init_worker(progress: Any, devices: Any) -> None:
 
 
 def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interval: int,
-            follow_checkpoint: bool, env_workers: int = 0) -> list[tuple[str, str]]:
+            follow_checkpoint: bool, env_workers: int = 0,
+            deadline: float | None = None) -> list[tuple[str, str]]:
     """Train one run, or one batch of runs, in a worker process, posting step counts to the
-    progress queue; return the (run id, reason) of batch members that failed alone."""
+    progress queue; return the (run id, reason) of batch members that failed alone. Past
+    ``deadline`` a task does not start, and a running one checkpoints and stops
+    (``TimeLimitReached``)."""
+    if past(deadline):
+        raise TimeLimitReached(None)
     progress = _progress
     pending = 0
     parent = os.getppid()
@@ -223,14 +248,20 @@ def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interv
 
     failed: list[tuple[str, str]] = []
     if isinstance(task, list):
-        failed = execute_batch(task, Path(store), on_steps=on_steps,
-                               checkpoint_interval=checkpoint_interval, device=_device,
-                               follow_checkpoint=follow_checkpoint,
-                               env_workers=env_workers).failed
+        try:
+            failed = execute_batch(task, Path(store), on_steps=on_steps,
+                                   checkpoint_interval=checkpoint_interval, device=_device,
+                                   follow_checkpoint=follow_checkpoint,
+                                   env_workers=env_workers, deadline=deadline).failed
+        finally:
+            progress.put(pending)
     else:
-        execute(task, Path(store), on_steps=on_steps, checkpoint_interval=checkpoint_interval,
-                device=_device, follow_checkpoint=follow_checkpoint)
-    progress.put(pending)
+        try:
+            execute(task, Path(store), on_steps=on_steps,
+                    checkpoint_interval=checkpoint_interval, device=_device,
+                    follow_checkpoint=follow_checkpoint, deadline=deadline)
+        finally:
+            progress.put(pending)
     return failed
 
 
@@ -488,7 +519,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
              checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
              address: str | None = None, device: str = "auto",
              gpu_workers: int | None = None, batch: int | None = None,
-             env_workers: int | None = None, dry_run: bool = False) -> GridOutcome:
+             env_workers: int | None = None, dry_run: bool = False,
+             deadline: float | None = None) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
     ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
@@ -498,7 +530,12 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
 
     ``batch``: runs that differ only in seed train together, up to this many per process
     (``baselines.batched``); on a GPU they do by default, as many as fit. ``env_workers``:
-    processes stepping each batch's envs (default: the cores left over by the workers)."""
+    processes stepping each batch's envs (default: the cores left over by the workers).
+
+    ``deadline`` (a ``time.time()``; default: the one ``time_limit`` set): finished runs are
+    kept, running ones checkpoint and stop, the rest do not start, and ``TimeLimitStop``
+    is raised with the counts once the workers are done."""
+    deadline = _deadline if deadline is None else deadline
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
@@ -523,7 +560,8 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                                                                  gpu_workers))
         return GridOutcome([], [], None)
     if executor == "ray":
-        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu")
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu",
+                           deadline)
     try:  # at most this many batches share the GPU at once
         gpu_slots = worker_devices(device, workers or os.cpu_count() or 1,
                                    gpu_workers).count("cuda")
@@ -554,6 +592,10 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
 
     started = time.time()
     failed: list[tuple[str, str]] = []
+    stopped: list[str] = []  # checkpointed at the time limit
+    not_started: list[str] = []
+    if tasks and past(deadline):  # the limit passed while the grid was prepared
+        raise TimeLimitStop(_stop_summary(missing, store, [], [p.run_id for p in missing], []))
     if tasks:
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
         # a plain queue handed over at worker start: no manager process to outlive a kill
@@ -568,16 +610,27 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                                      initargs=(progress, device_slots)) as pool:
                 futures: dict[Future, PreparedRun | list[PreparedRun]] = {
                     pool.submit(_worker, task, str(store), checkpoint_interval,
-                                device == "auto", env_workers): task
+                                device == "auto", env_workers, deadline): task
                     for task in tasks}
                 pending = set(futures)
                 done_count = 0
                 while pending:
+                    if past(deadline):  # what has not started yet never will
+                        for future in pending:
+                            future.cancel()
                     finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                     for future in finished:
                         task = futures[future]
+                        error = None if future.cancelled() else future.exception()
+                        lost: list[tuple[str, str]] = []
+                        if future.cancelled() or (isinstance(error, TimeLimitReached)
+                                                  and error.step is None):
+                            not_started.extend(_task_ids(task))
+                            continue
+                        if isinstance(error, TimeLimitReached):
+                            stopped.extend(_task_ids(task))
+                            continue
                         done_count += len(_task_ids(task))
-                        error = future.exception()
                         if error is not None:
                             reason = f"{type(error).__name__}: {error}".replace("\n", " ")
                             lost = [(run_id, reason) for run_id in _task_ids(task)]
@@ -600,7 +653,20 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
             except queue.Empty:
                 pass
     runs = [load_run(p.directory(store)) for p in prepared if is_complete(p.directory(store))]
+    if stopped or not_started:
+        raise TimeLimitStop(_stop_summary(missing, store, stopped, not_started, failed))
     return GridOutcome(runs, failed, time.time() - started)
+
+
+def _stop_summary(missing: list[PreparedRun], store: Path, stopped: list[str],
+                  not_started: list[str], failed: list[tuple[str, str]]) -> str:
+    """What a grid stopped at its time limit leaves: runs kept, checkpointed, not started."""
+    landed = sum(is_complete(p.directory(store)) for p in missing)
+    parts = [f"{landed} of {len(missing)} runs finished and kept",
+             f"{len(stopped)} checkpointed at the limit", f"{len(not_started)} not started"]
+    if failed:
+        parts.append(f"{len(failed)} failed")
+    return ", ".join(parts)
 
 
 def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
@@ -620,7 +686,8 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     return train_and_report(
         specs, skipped, profile, figure3_command(profile), store, out_dir,
         lambda outcome, out: write_figure3_report(
-            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs)),
+            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs),
+            figure4_runs(profile, Path(store))),
         algos, envs, dry_run, workers=workers, checkpoint_interval=checkpoint_interval,
         executor=executor, address=address, device=device, gpu_workers=gpu_workers,
         batch=batch)
@@ -773,14 +840,17 @@ def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, comman
 
 
 def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int,
-                 device: str) -> str:
-    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval, device=device)
+                 device: str, deadline: float | None = None) -> str:
+    if past(deadline):
+        raise TimeLimitReached(None)
+    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval, device=device,
+            deadline=deadline)
     return prepared.run_id
 
 
 def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-                address: str | None, checkpoint_interval: int, device: str = "auto"
-                ) -> GridOutcome:
+                address: str | None, checkpoint_interval: int, device: str = "auto",
+                deadline: float | None = None) -> GridOutcome:
     """One Ray task per missing run, one CPU each. The store must be a path every node
     sees (a shared filesystem), and every node needs this project installed."""
     try:
@@ -806,8 +876,10 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
               "local executor only; on Ray their runs start over", flush=True)
     started = time.time()
     failed: list[tuple[str, str]] = []
+    stopped: list[str] = []
+    not_started: list[str] = []
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
-    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval, device): p
+    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval, device, deadline): p
                for p in missing}
     with tqdm(total=len(missing), unit="run", dynamic_ncols=True, desc="training on Ray") as bar:
         while pending:
@@ -818,13 +890,18 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
                     ray.get(ref)
                 except Exception as error:  # the run's own error, wrapped by Ray
                     cause = getattr(error, "cause", None) or error
-                    reason = f"{type(cause).__name__}: {cause}".replace("\n", " ")
-                    failed.append((run.run_id, reason))
-                    tqdm.write(f"run failed: {run.run_id}: {reason}")
+                    if isinstance(cause, TimeLimitReached):
+                        (stopped if cause.step is not None else not_started).append(run.run_id)
+                    else:
+                        reason = f"{type(cause).__name__}: {cause}".replace("\n", " ")
+                        failed.append((run.run_id, reason))
+                        tqdm.write(f"run failed: {run.run_id}: {reason}")
                 bar.update(1)
                 bar.set_postfix_str(f"running {min(len(pending), cluster_cpus)}, "
                                     f"left {len(pending)}, failed {len(failed)}", refresh=False)
     runs = [load_run(p.directory(store)) for p in prepared if is_complete(p.directory(store))]
+    if stopped or not_started:
+        raise TimeLimitStop(_stop_summary(missing, store, stopped, not_started, failed))
     return GridOutcome(runs, failed, time.time() - started)
 
 
@@ -848,7 +925,8 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
     if outcome is None:
         return None
     return write_figure3_report(outcome, chosen, out_dir,
-                                guidance_settings(profile, outcome.runs, specs))
+                                guidance_settings(profile, outcome.runs, specs),
+                                figure4_runs(profile, Path(store)))
 
 
 FIG4_ENV = "Ant-v5"
@@ -879,6 +957,16 @@ def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = N
         specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
                   for seed in range(n_seeds)]
     return specs
+
+
+def figure4_runs(profile: str, store: Path) -> list[Run]:
+    """The profile's Fig. 4 runs on Ant in the store (claim 5 is judged on them); none
+    without Ant's demonstrations."""
+    from replicate.demos import default_demo_path
+
+    if not default_demo_path(FIG4_ENV).is_file():
+        return []
+    return stored_runs(figure4_report_grid(get_profile(profile), FIG4_ENV, None), store)
 
 
 def figure4_command(profile: str, env_id: str) -> str:

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from replicate.errors import HarnessError
-from replicate.runner import Run
+
+if TYPE_CHECKING:  # the command line's help reads the profiles without loading torch
+    from replicate.runner import Run
 
 
 @dataclass(frozen=True)

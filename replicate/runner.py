@@ -4,14 +4,17 @@ A run directory is named by the algorithm, env, seed and a hash of the resolved 
 built under a hidden name (``.partial-<run id>``) and renamed into place only when training
 finished, so a directory with the final name is always complete. While it trains, the run
 checkpoints into its hidden directory; a run that was interrupted (Ctrl-C, kill -9, a lost
-machine) resumes from there when it is started again and finishes on the same curve. A
-run that raised an error is recorded as failed and its hidden directory removed. A lock
-file keeps two processes from training the same run at once.
+machine, a time limit) resumes from there when it is started again and finishes on the
+same curve. A run that raised an error is recorded as failed and its hidden directory
+removed. A lock file keeps two processes from training the same run at once.
 
 Files of a run:
     spec.json        the resolved spec: hyperparameters with defaults, demonstration hash
     curve.csv        the evaluation curve (env steps, return of each test episode, ...)
     provenance.json  versions, git revision, machine, seed, wall time, env steps per second
+    sittings.json    one entry per part of the training (a run interrupted and resumed
+                     once was trained in two parts): start, step resumed from, wall time,
+                     device; provenance.json repeats the list under "sittings"
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from baselines.common.checkpoint import CheckpointDeviceError
+from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import get_algorithm
@@ -140,7 +143,7 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
 
 DEFAULT_CHECKPOINT_INTERVAL = 10_000  # env steps; taken at the next episode end
 CHECKPOINT_FILE = carry.CHECKPOINT_FILE
-SITTINGS_FILE = "sittings.json"
+SITTINGS_FILE = "sittings.json"  # the parts a run was trained in (the name is the format's)
 
 
 class RunLockedError(HarnessError):
@@ -148,7 +151,8 @@ class RunLockedError(HarnessError):
 
 
 # Errors of the numbers or the code: resuming would meet them again, so their run's hidden
-# directory is removed. Anything else (a full disk, a lost machine, Ctrl-C) keeps it to resume.
+# directory is removed. Anything else (a full disk, a lost machine, Ctrl-C, the time limit)
+# keeps it to resume.
 RECURRING_ERRORS = (FloatingPointError, ValueError, TypeError, KeyError, IndexError,
                     AttributeError, RuntimeError, HarnessError)
 
@@ -160,12 +164,14 @@ def partial_directory(prepared: PreparedRun, store: Path) -> Path:
 def execute(prepared: PreparedRun, store: Path,
             on_steps: Callable[[int], None] = lambda n: None,
             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-            follow_checkpoint: bool | None = None) -> Run:
+            follow_checkpoint: bool | None = None, deadline: float | None = None) -> Run:
     """Train ``prepared`` into the store unless a complete run with its address exists;
     resume it from its checkpoint if an earlier attempt was interrupted. ``device``: ``auto``
     (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``. A
     checkpoint made on the other kind of device is resumed there when ``follow_checkpoint``
-    (default: when ``device`` is ``auto``), and refused otherwise."""
+    (default: when ``device`` is ``auto``), and refused otherwise. ``deadline`` (a
+    ``time.time()``): once it has passed, the run checkpoints at its next chance and raises
+    ``TimeLimitReached``, its checkpoint kept for the same call to resume."""
     if follow_checkpoint is None:
         follow_checkpoint = device == "auto"
     check_device(device)
@@ -190,10 +196,10 @@ def execute(prepared: PreparedRun, store: Path,
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
                     if carry.should_unpack(store, prepared.run_id, work_dir / CHECKPOINT_FILE):
-                        carry.unpack_run(store, prepared.run_id)  # packed in another sitting
+                        carry.unpack_run(store, prepared.run_id)  # packed elsewhere
                     try:
                         _train_into(prepared, work_dir, on_steps, checkpoint_interval, device,
-                                    follow_checkpoint)
+                                    follow_checkpoint, deadline)
                     except CheckpointDeviceError as exc:  # the checkpoint stays
                         raise HarnessError(str(exc), "run it on the device its checkpoint "
                                            "names, or delete its directory") from None
@@ -215,19 +221,20 @@ def execute(prepared: PreparedRun, store: Path,
     return load_run(final_dir)
 
 
-def _checkpoint_device(run_dir: Path, earlier_sittings: list[dict]) -> str | None:
-    """``cpu`` or ``cuda``: where the run's checkpoint was made (by its last sitting, since a
-    sitting only resumes a checkpoint of its own kind); None without a checkpoint. Sittings
-    from before the GPU path name no device: they ran on CPU."""
+def _checkpoint_device(run_dir: Path, earlier_parts: list[dict]) -> str | None:
+    """``cpu`` or ``cuda``: where the run's checkpoint was made (by the last part of its
+    training, since a part only resumes a checkpoint of its own kind); None without a
+    checkpoint. Parts from before the GPU path name no device: they ran on CPU."""
     if not (run_dir / CHECKPOINT_FILE).is_file():
         return None
-    return device_kind(earlier_sittings[-1].get("device", "cpu") if earlier_sittings else "cpu")
+    return device_kind(earlier_parts[-1].get("device", "cpu") if earlier_parts else "cpu")
 
 
 class _RunRecorder:
     """Writes one run's files while it trains: spec.json, curve.csv (rewritten whole: a
     resumed algorithm re-emits the points it had, which keep the wall time they were first
-    written with), sittings.json after every point, and provenance.json at the end."""
+    written with), sittings.json (the parts of the training) after every point, and
+    provenance.json at the end."""
 
     def __init__(self, prepared: PreparedRun, run_dir: Path, device: str,
                  batch: dict[str, Any] | None = None):
@@ -256,14 +263,16 @@ class _RunRecorder:
     def on_resume(self, step: int) -> None:
         self.resumed_from = step
 
-    def record_sitting(self) -> None:
-        sitting = {"started_utc": self.started_iso, "resumed_from_step": self.resumed_from,
-                   "wall_time_s": round(time.time() - self.started, 3),
-                   "git_revision": provenance.code_revision(),
-                   "device": describe_device(self.device)}
+    def record_part(self) -> None:
+        """This part of the training (from its start or resume to now) after the earlier
+        ones, in sittings.json."""
+        part = {"started_utc": self.started_iso, "resumed_from_step": self.resumed_from,
+                "wall_time_s": round(time.time() - self.started, 3),
+                "git_revision": provenance.code_revision(),
+                "device": describe_device(self.device)}
         if self.batch is not None:
-            sitting["batch"] = self.batch["id"]
-        self.sittings_path.write_text(json.dumps(self.earlier + [sitting], indent=1) + "\n")
+            part["batch"] = self.batch["id"]
+        self.sittings_path.write_text(json.dumps(self.earlier + [part], indent=1) + "\n")
 
     def on_eval(self, point: EvalPoint) -> None:
         kept = point.step <= self.resumed_from and point.step in self.earlier_walls
@@ -275,22 +284,22 @@ class _RunRecorder:
             self.earlier_walls[point.step] if kept
             else f"{self.earlier_wall + time.time() - self.started:.3f}"])
         self.curve_file.flush()
-        self.record_sitting()
+        self.record_part()
 
     def close(self) -> None:
         if self.curve_file is not None:
             self.curve_file.close()
 
     def finish(self) -> None:
-        """The last sitting and provenance.json: the run is complete."""
-        self.record_sitting()
+        """The last part of the training and provenance.json: the run is complete."""
+        self.record_part()
         prepared, spec = self.prepared, self.prepared.spec
-        sittings = json.loads(self.sittings_path.read_text())
-        wall = sum(s["wall_time_s"] for s in sittings)
+        parts = json.loads(self.sittings_path.read_text())
+        wall = sum(s["wall_time_s"] for s in parts)
         payload = {
             "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
-            "seed": spec.seed, "started_utc": sittings[0]["started_utc"],
-            "wall_time_s": round(wall, 3), "sittings": sittings,
+            "seed": spec.seed, "started_utc": parts[0]["started_utc"],
+            "wall_time_s": round(wall, 3), "sittings": parts,
             "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
             "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
             "machine": provenance.machine(), "device": describe_device(self.device),
@@ -315,10 +324,10 @@ def _context(prepared: PreparedRun, recorder: _RunRecorder, device: str,
 
 def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
                 checkpoint_interval: int, requested_device: str,
-                follow_checkpoint: bool) -> None:
+                follow_checkpoint: bool, deadline: float | None = None) -> None:
     device = resolve_device(requested_device, get_algorithm(prepared.spec.algo).gpu)
-    sittings_path = run_dir / SITTINGS_FILE
-    earlier = json.loads(sittings_path.read_text()) if sittings_path.is_file() else []
+    parts_path = run_dir / SITTINGS_FILE
+    earlier = json.loads(parts_path.read_text()) if parts_path.is_file() else []
     # decided before anything in run_dir is touched
     device = resume_device(device, _checkpoint_device(run_dir, earlier), follow_checkpoint,
                            what=f"run {prepared.run_id} ({run_dir})")
@@ -326,9 +335,12 @@ def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], 
     recorder.open()
     ctx = _context(prepared, recorder, device, on_steps=on_steps,
                    checkpoint_path=run_dir / CHECKPOINT_FILE,
-                   checkpoint_interval=checkpoint_interval)
+                   checkpoint_interval=checkpoint_interval, deadline=deadline)
     try:
         get_algorithm(prepared.spec.algo).train(ctx, prepared.config)
+    except TimeLimitReached:
+        recorder.record_part()  # this part's wall time up to the stop
+        raise
     finally:
         recorder.close()
     recorder.finish()
@@ -364,13 +376,14 @@ class BatchOutcome:
 def execute_batch(members: list[PreparedRun], store: Path,
                   on_steps: Callable[[int], None] = lambda n: None,
                   checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-                  follow_checkpoint: bool | None = None, env_workers: int = 0) -> BatchOutcome:
+                  follow_checkpoint: bool | None = None, env_workers: int = 0,
+                  deadline: float | None = None) -> BatchOutcome:
     """Train ``members`` (one algorithm with a batched trainer, one env and budget,
     different seeds) together in this process. Each member lands in the store as its own
     run directory, at the address the one-run path gives it; its provenance names the batch.
     A member that diverges fails alone. The batch checkpoints as a whole into
     ``<store>/.<batch id>/`` and resumes from there when started again with the same
-    members."""
+    members; past ``deadline`` it checkpoints and stops, as ``execute`` does."""
     from baselines.registry import batched_trainer
 
     if follow_checkpoint is None:
@@ -411,7 +424,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
         batch_dir.mkdir(exist_ok=True)
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
         if carry.should_unpack(store, ident, batch_dir / CHECKPOINT_FILE):
-            carry.unpack_batch(store, ident)  # packed in another sitting, maybe elsewhere
+            carry.unpack_batch(store, ident)  # packed before, maybe on another machine
         batch_sittings = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
         resolved = resolve_device(device, has_gpu_path=True)
@@ -421,7 +434,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
         except CheckpointDeviceError as exc:
             raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
                                f"delete {batch_dir}") from None
-        # the sitting is recorded before training: a checkpoint it leaves names its device
+        # this part is recorded before training: a checkpoint it leaves names its device
         batch_sittings.write_text(json.dumps(earlier + [{
             "wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1) + "\n")
         info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
@@ -443,12 +456,19 @@ def execute_batch(members: list[PreparedRun], store: Path,
                             on_steps=on_steps, on_resume=on_resume,
                             on_member_failed=lambda k, why: failures.__setitem__(k, why),
                             checkpoint_path=batch_dir / CHECKPOINT_FILE,
-                            checkpoint_interval=checkpoint_interval)
+                            checkpoint_interval=checkpoint_interval, deadline=deadline)
         started = time.time()
         for recorder in recorders:
             recorder.open()
         try:
             trainer(bctx, [p.config for p in members])
+        except TimeLimitReached:  # each part's wall time up to the stop; the checkpoint stays
+            batch_sittings.write_text(json.dumps(earlier + [{
+                "wall_time_s": round(time.time() - started, 3),
+                "device": describe_device(resolved)}], indent=1) + "\n")
+            for recorder in recorders:
+                recorder.record_part()
+            raise
         except CheckpointDeviceError as exc:
             raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
                                f"delete {batch_dir}") from None

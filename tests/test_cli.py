@@ -131,3 +131,23 @@ def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeyp
     assert str(default_store("smoke")) == "runs-smoke" and str(default_store("quick")) == "runs"
     monkeypatch.setenv("REPLICATE_STORE", "/elsewhere")
     assert str(default_store("smoke")) == "/elsewhere"
+
+
+@pytest.mark.parametrize("command", ["fig3", "fig4", "ablate-threshold", "compare-rlfd",
+                                     "report", "train", "expert", "carry"])
+def test_help_describes_every_profile_and_states_each_default_once(command, capsys,
+                                                                   monkeypatch):
+    from replicate.profiles import PROFILES
+
+    monkeypatch.setenv("COLUMNS", "100")
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    out = capsys.readouterr().out
+    flat = " ".join(out.split())
+    assert "(default: None)" not in flat and "(default: False)" not in flat
+    options = flat.split(" --")[1:]  # one piece per option, from its flag to the next
+    for option in options:
+        assert option.lower().count("default") <= 1, option
+    if "--profile" in out:
+        for name, profile in PROFILES.items():
+            assert f"{name}: {' '.join(profile.summary.split())}" in flat

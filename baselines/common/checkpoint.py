@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -48,5 +49,34 @@ def load_checkpoint(path: Path | None) -> dict[str, Any] | None:
     return torch.load(path, weights_only=False, map_location="cpu")
 
 
-def due(step: int, last_checkpoint_step: int, interval: int) -> bool:
-    return interval > 0 and step - last_checkpoint_step >= interval
+class TimeLimitReached(Exception):
+    """A run stopped at its command's time limit, just after saving its checkpoint at
+    ``step`` (None: it never started). Not an error of the run (so not a RuntimeError): the
+    runner keeps the checkpoint, and the same command resumes from it."""
+
+    def __init__(self, step: int | None):
+        super().__init__("not started: the time limit had passed" if step is None else
+                         f"stopped at the time limit after step {step}, checkpoint saved")
+        self.step = step
+
+    def __reduce__(self):
+        return self.__class__, (self.step,)  # crosses a process pool intact
+
+
+def past(deadline: float | None) -> bool:
+    """Whether the wall-clock ``deadline`` (``time.time()`` seconds; None: none) has passed."""
+    return deadline is not None and time.time() >= deadline
+
+
+def due(step: int, last_checkpoint_step: int, interval: int,
+        deadline: float | None = None) -> bool:
+    """Whether to checkpoint now: every ``interval`` env steps (0: never), and at the first
+    chance after ``deadline``, whatever the interval, so that a run stopped there keeps its
+    work."""
+    return (interval > 0 and step - last_checkpoint_step >= interval) or past(deadline)
+
+
+def stop_if_past(deadline: float | None, step: int) -> None:
+    """Called just after a checkpoint: stop the run there once its deadline has passed."""
+    if past(deadline):
+        raise TimeLimitReached(step)

@@ -55,5 +55,8 @@ class TrainContext:
     on_resume: Callable[[int], None] = field(default=lambda step: None)  # step resumed from
     checkpoint_path: Path | None = None
     checkpoint_interval: int = 0
+    # The command's time limit as a wall-clock time (time.time()); None: none. Once it has
+    # passed, the run checkpoints at its next chance and stops (TimeLimitReached).
+    deadline: float | None = None
     # Where to keep the weights of the policy with the best evaluation so far (experts).
     best_policy_path: Path | None = None
