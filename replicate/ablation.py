@@ -35,7 +35,7 @@ from replicate.experiments import (ALWAYS_GUIDE, DEFAULT_GUIDE_NOISE_STD, SPACIN
 from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
-from replicate.stats import bootstrap_mean, stratified_bootstrap_ci
+from replicate.stats import stratified_bootstrap_ci, t_mean
 from replicate.templating import report_environment
 
 ALWAYS = ALWAYS_GUIDE
@@ -464,14 +464,12 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
     from replicate import provenance
     from replicate.report import _atomic_write, summary_bytes
 
-    rng = np.random.default_rng(REPORT_SEED)
-
     def estimate(values: list[float]) -> dict[str, Any]:
         if not values:
             return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
-        est = bootstrap_mean(np.array(values), rng)
-        return {"mean": float(est.value[0]), "low": float(est.low[0]),
-                "high": float(est.high[0]), "n": len(values)}
+        est = t_mean(np.array(values))
+        return {"mean": est.value, "low": est.low, "high": est.high, "n": len(values),
+                "method": est.label}
 
     spacing = threshold_spacing(env_id)
     admitted = admitted_share(env_id, [c.threshold for c in cells])

@@ -19,11 +19,11 @@ from replicate import provenance
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.runner import Run
-from replicate.claims import Group, judge_claims
+from replicate.claims import Group
 from replicate.published import published_points
-from replicate.stats import (CONFIDENCE, bootstrap_mean, interquartile_mean, steps_to_reach,
-                             probability_of_improvement, score_profile, stratified_bootstrap_ci,
-                             substream)
+from replicate.stats import (CONFIDENCE, T_METHOD, interquartile_mean, paired_mean_difference,
+                             probability_of_improvement, score_profile, steps_to_reach,
+                             stratified_bootstrap_ci, substream, t_mean, t_mean_columns)
 from replicate.templating import report_environment
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
@@ -57,19 +57,32 @@ def curve_matrix(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(common), matrix
 
 
-def summarise(runs: list[Run], seed: int) -> tuple[list[CurveBand], list[FinalReturns]]:
-    """Each (env, algorithm)'s curve band and final returns, bootstrapped on the cell's own
-    stream."""
+def summarise(runs: list[Run]) -> tuple[list[CurveBand], list[FinalReturns]]:
+    """Each (env, algorithm)'s curve band and final returns, with t-intervals over seeds."""
     bands, finals = [], []
     for (env_id, algo), members in sorted(group_runs(runs).items()):
         steps, matrix = curve_matrix(members)
-        band = bootstrap_mean(matrix, substream(seed, env_id, algo, "curve"))
+        band = t_mean_columns(matrix)
         bands.append(CurveBand(algo, env_id, steps, band.value, band.low, band.high, len(members)))
         last = matrix[:, -1]
-        est = bootstrap_mean(last, substream(seed, env_id, algo, "final"))
+        est = t_mean(last)
         finals.append(FinalReturns(env_id, algo, [r.spec["seed"] for r in members], last,
-                                   float(est.value[0]), float(est.low[0]), float(est.high[0])))
+                                   est.value, est.low, est.high))
     return bands, finals
+
+
+def training_rates(members: list[Run]) -> dict[str, float]:
+    """Env steps per second of one training process (a seed batch's members together), by
+    device kind, median over the runs: what more seeds of this cell would cost."""
+    by_kind: dict[str, list[float]] = defaultdict(list)
+    for run in members:
+        rate = run.provenance.get("env_steps_per_s")
+        if not rate:
+            continue
+        batch = (run.provenance.get("batch") or {}).get("size", 1)
+        kind = "gpu" if str(run.provenance.get("device", "cpu")).startswith("cuda") else "cpu"
+        by_kind[kind].append(float(rate) * batch)
+    return {kind: float(np.median(rates)) for kind, rates in by_kind.items()}
 
 
 def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
@@ -78,7 +91,7 @@ def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
     for (env_id, algo), members in group_runs(runs).items():
         steps, matrix = curve_matrix(members)
         groups[(env_id, algo)] = Group(env_id, algo, [r.spec["seed"] for r in members],
-                                       matrix[:, -1], matrix, steps)
+                                       matrix[:, -1], matrix, steps, training_rates(members))
     return groups
 
 
@@ -129,18 +142,16 @@ def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[s
 REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstrations' return
 
 
-def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
-                    seed: int) -> list[dict[str, Any]]:
+def efficiency_rows(groups: dict[tuple[str, str], Group],
+                    demo_returns: dict[str, float]) -> list[dict[str, Any]]:
     """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
-    ``REACH_FRACTION`` of the demonstrations' return, each with a bootstrap CI over seeds (on
-    the cell's own stream)."""
-    def estimate(values: np.ndarray, rng: np.random.Generator) -> dict[str, Any]:
+    ``REACH_FRACTION`` of the demonstrations' return, each with a t-interval over seeds."""
+    def estimate(values: np.ndarray) -> dict[str, Any]:
         values = values[np.isfinite(values)]
         if not len(values):
             return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
-        est = bootstrap_mean(values, rng)
-        return {"mean": float(est.value[0]), "low": float(est.low[0]),
-                "high": float(est.high[0]), "n": int(len(values))}
+        est = t_mean(values)
+        return {"mean": est.value, "low": est.low, "high": est.high, "n": int(len(values))}
 
     rows = []
     for (env_id, algo), group in sorted(groups.items()):
@@ -148,15 +159,14 @@ def efficiency_rows(groups: dict[tuple[str, str], Group], demo_returns: dict[str
             continue
         level = REACH_FRACTION * demo_returns[env_id]
         rows.append({"env_id": env_id, "algo": algo, "n": len(group.seeds),
-                     "area": estimate(group.areas, substream(seed, env_id, algo, "area")),
-                     "reach": estimate(steps_to_reach(group.steps, group.curves, level),
-                                       substream(seed, env_id, algo, "reach")),
+                     "area": estimate(group.areas),
+                     "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
                      "level": level})
     return rows
 
 
-def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int],
-                   seed: int) -> list[dict[str, Any]]:
+def published_rows(groups: dict[tuple[str, str], Group],
+                   budgets: dict[str, int]) -> list[dict[str, Any]]:
     """Our SAC beside published SAC at every published budget within ours, and the
     evaluation at those steps of the run that trained the env's expert (the harness's
     twin-Q SAC, one seed), where it trained that far."""
@@ -173,9 +183,8 @@ def published_rows(groups: dict[tuple[str, str], Group], budgets: dict[str, int]
             ours = None
             if sac is not None and sac.steps is not None and point.steps in set(sac.steps):
                 column = sac.curves[:, list(sac.steps).index(point.steps)]
-                est = bootstrap_mean(column, substream(seed, env_id, "sac", str(point.steps)))
-                ours = {"mean": float(est.value[0]), "low": float(est.low[0]),
-                        "high": float(est.high[0]), "n": len(column)}
+                est = t_mean(column)
+                ours = {"mean": est.value, "low": est.low, "high": est.high, "n": len(column)}
             expert = None
             if expert_run is not None and point.steps in expert_run["steps"]:
                 expert = {k: expert_run[k] for k in ("algo", "seed", "best_of")}
@@ -265,24 +274,131 @@ def _atomic_write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
+def demo_returns(runs: list[Run]) -> dict[str, float]:
+    """The demonstrations' mean return per env, from the runs that used them."""
+    return {run.spec["env_id"]: run.provenance["demos"]["expert_return_mean"]
+            for run in runs if run.provenance.get("demos")}
+
+
+def judging_profile(claim_envs: tuple[str, ...]) -> str | None:
+    """The smallest profile whose Fig. 3 budget covers ``claim_envs`` and means something:
+    where a claim the current profile cannot judge is judged."""
+    from replicate.profiles import PROFILES
+
+    return next((p.name for p in PROFILES.values()
+                 if p.meaningful and set(claim_envs) <= set(p.steps)), None)
+
+
+def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict[str, Any]]:
+    """The profile's one verdict per claim: claims 1-4 from the Fig. 3 runs, claim 5 from
+    Fig. 4's paired runs; a claim on envs outside the profile's budget names the report
+    that judges it (``where``: a link within reports/)."""
+    from replicate.claims import CLAIM_ENVS, judge_claims
+    from replicate.profiles import report_dir
+
+    fig3_runs_absent = not runs  # the Fig. 4 report asks for claim 5 alone
+    claims = judge_claims(claim_groups(runs), demo_returns(runs + fig4_runs), profile.meaningful,
+                          judged_envs=set(profile.steps), fig4_groups=claim_groups(fig4_runs)
+                          if fig4_runs else None)
+    for claim in claims:
+        claim["where"] = None
+        if claim["verdict"].startswith("not judged at this profile"):
+            other = judging_profile(CLAIM_ENVS[claim["id"]])
+            if other:
+                name = "fig4" if claim["id"] == 5 else "fig3"
+                # reports link each other within the standard layout of reports/
+                here = report_dir(profile.name, "fig4" if fig3_runs_absent else "fig3")
+                target = Path(os.path.relpath(report_dir(other, name) / "index.html", here))
+                claim["verdict"] += f": see the {other} profile's report"
+                claim["where"] = f"{target.as_posix()}#claim-{claim['id']}"
+    return claims
+
+
+def seed_counts(runs: list[Run]) -> str:
+    """How many seeds the report's cells hold, from the runs: '5 seeds in 6 cells, 3 in
+    14' (per cell in the report's Budgets)."""
+    counts = sorted((len(members) for members in group_runs(runs).values()), reverse=True)
+    if not counts:
+        return "no runs yet"
+    tally = {n: counts.count(n) for n in dict.fromkeys(counts)}
+    parts = [f"{n} in {k} cell{'s' if k != 1 else ''}" for n, k in tally.items()]
+    return "seeds per cell: " + ", ".join(parts)
+
+
+MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+
+
+def threats_to_validity(runs: list[Run], published: list[dict[str, Any]],
+                        paper_seeds: int = PAPER_SEEDS_FIG3) -> list[str]:
+    """What a reviewer must weigh before reading a MuJoCo verdict, from the runs: budget and
+    seeds against the paper's, how much DRL-EG's guider acted, how far the demonstrations
+    fall short of the experts' targets, and our SAC against published SAC at the same steps.
+    Empty without MuJoCo runs."""
+    from replicate.table1 import EXPERT_TARGETS
+
+    mujoco = [r for r in runs if r.spec["env_id"] in MUJOCO_ENVS]
+    if not mujoco:
+        return []
+    steps = sorted({int(r.spec["total_steps"]) for r in mujoco})
+    counts = sorted({len(m) for (e, _), m in group_runs(mujoco).items()})
+    seeds = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+    threats = [f"Budget and seeds: {' and '.join(f'{s:,}' for s in steps)} env steps per MuJoCo "
+               f"run, where the paper's text states no budget (the harness assumes 1M); "
+               f"{seeds} seeds per cell, where the paper shows {paper_seeds}."]
+    shares = defaultdict(list)
+    for run in mujoco:
+        if run.spec["algo"] == "drl-eg":
+            shares[run.spec["env_id"]].append(run.guided_share)
+    if shares:
+        def share(x: float) -> str:
+            return f"{x:.1%}" if x >= 0.001 or x == 0 else "<0.1%"
+
+        per_env = "; ".join(f"{env_id} {share(min(v))}-{share(max(v))}"
+                            for env_id, v in sorted(shares.items()))
+        threats.append("Guidance under the chosen T2: DRL-EG's guider took this share of the "
+                       f"training steps ({per_env}); where it rarely acts, DRL-EG is close to "
+                       "SAC by construction.")
+    short = []
+    for env_id, value in sorted(demo_returns(mujoco).items()):
+        target = EXPERT_TARGETS.get(env_id)
+        if target and value < target:
+            short.append(f"{env_id} {value:.0f} against {target:.0f} "
+                         f"({1 - value / target:.0%} short)")
+    if short:
+        threats.append("Demonstrations below the experts' targets (what published SAC reaches "
+                       "at 1M steps): " + "; ".join(short) + ". Claim 3's 'near the "
+                       "demonstrations' is judged against these returns.")
+    ratios = [f"{p['env_id']} {p['ours']['mean']:.0f} against {p['mean']:.0f} "
+              f"({p['label']}, {p['steps']:,} steps)"
+              for p in published if p.get("ours") and p["source"] == "tianshou"
+              and p["steps"] == max(q["steps"] for q in published if q["env_id"] == p["env_id"])]
+    if ratios:
+        threats.append("Our SAC (V-network SAC, the paper's) against Tianshou's twin-Q SAC "
+                       "(learning rate 1e-3, 10,000 random start steps) at the same steps: "
+                       + "; ".join(ratios) + ". A different algorithm and configuration: a "
+                       "reference, not a target.")
+    return threats
+
+
 def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
-                         guidance: list[dict[str, Any]] | None = None) -> Path:
+                         guidance: list[dict[str, Any]] | None = None,
+                         fig4_runs: list[Run] | None = None) -> Path:
     """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
-    ``guidance`` (``experiments.guidance_settings``) is printed beside the claims."""
+    ``guidance`` (``experiments.guidance_settings``) is printed beside the claims;
+    ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5."""
     runs = outcome.runs
-    bands, finals = summarise(runs, REPORT_SEED) if runs else ([], [])
-    demo_lines = {}
+    bands, finals = summarise(runs) if runs else ([], [])
+    demo_lines = demo_returns(runs)
     demos = {}
     for run in runs:
         info = run.provenance.get("demos")
         if info:
-            demo_lines[run.spec["env_id"]] = info["expert_return_mean"]
             demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
     groups = claim_groups(runs)
-    claims = judge_claims(groups, demo_lines, REPORT_SEED, profile.meaningful)
+    claims = ledger(runs, fig4_runs or [], profile)
     aggregate = aggregate_metrics(groups, demo_lines, substream(REPORT_SEED, "aggregate"))
-    efficiency = efficiency_rows(groups, demo_lines, REPORT_SEED)
-    published = published_rows(groups, profile.steps, REPORT_SEED)
+    efficiency = efficiency_rows(groups, demo_lines)
+    published = published_rows(groups, profile.steps)
     title = f"Fig. 3 replication, profile '{profile.name}'"
     points = {env_id: [(p.steps, p.mean, p.std) for p in published_points(env_id, steps)
                        if p.source == "tianshou"]
@@ -311,7 +427,8 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
         "grid_wall_s": outcome.wall_time_s, "confidence": CONFIDENCE,
         "efficiency": efficiency, "published": published, "reach_fraction": REACH_FRACTION,
-        "guidance": guidance or [],
+        "guidance": guidance or [], "seed_counts": seed_counts(runs),
+        "threats": threats_to_validity(runs, published),
     }
     env = report_environment()
     html = env.get_template("fig3.html").render(**context)
@@ -329,7 +446,8 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
         "aggregate": None if aggregate is None else {
             k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
         "efficiency": efficiency, "published_sac": published, "guidance": guidance or [],
-        "git_revisions": context["revisions"],
+        "git_revisions": context["revisions"], "seed_counts": context["seed_counts"],
+        "threats": context["threats"],
     }
     _atomic_write(out_dir / "summary.json",
                   summary_bytes(summary))
@@ -340,11 +458,9 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                          out_dir: Path, guidance: list[dict[str, Any]] | None = None) -> Path:
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
-    from replicate.claims import ANT, budget_note, claim_5, claim_streams
+    from replicate.claims import ANT, PAPER_FIG4_SEEDS
     from replicate.figures import paired_curves_png
-    from replicate.stats import paired_difference
 
-    rng = np.random.default_rng(REPORT_SEED)
     by_seed: dict[int, dict[str, Run]] = defaultdict(dict)
     for run in outcome.runs:
         by_seed[run.spec["seed"]][run.spec["algo"]] = run
@@ -358,19 +474,14 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
                      # same seed, same initial weights: the step-0 evaluations must agree
                      "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
                      "runs": [sac.path.name, drl.path.name]})
-    paired = None
-    if len(rows) >= 2:
-        estimate, p_value = paired_difference(np.array([r["drl"] for r in rows]),
-                                              np.array([r["sac"] for r in rows]), rng)
-        paired = {"value": float(estimate.value), "low": float(estimate.low),
-                  "high": float(estimate.high), "p_value": p_value}
     claim = None
-    if env_id == ANT and pairs:
-        groups = claim_groups(outcome.runs)
-        claim = claim_5(groups, {}, claim_streams(REPORT_SEED, 5))  # as Fig. 3's ledger
-        claim["budget_note"] = budget_note(5, groups)
-        if not profile.meaningful:
-            claim["verdict"] = "not judged (smoke profile: numbers mean nothing)"
+    if env_id == ANT and pairs:  # the same verdict as the Fig. 3 report's ledger
+        claim = ledger([], outcome.runs, profile)[4]
+    paired = claim.get("paired") if claim else None
+    if paired is None and rows:  # another env, or a profile that does not judge claim 5
+        paired = paired_mean_difference(
+            np.array([r["drl"] for r in rows]), np.array([r["sac"] for r in rows]),
+            f"{env_id}: DRL-EG minus SAC, final return").as_dict()
     panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy(),
                              run.curve["train_return"].to_numpy(float))
                       for algo, run in runs.items()}) for seed, runs in pairs.items()]
@@ -385,11 +496,15 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
         "steps": int(outcome.runs[0].spec["total_steps"]) if outcome.runs else 0,
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
         "guidance": guidance or [],
+        "threats": threats_to_validity(outcome.runs, published_rows(
+            claim_groups(outcome.runs), {env_id: int(outcome.runs[0].spec["total_steps"])}
+            if outcome.runs else {}), paper_seeds=PAPER_FIG4_SEEDS),
     }
     env = report_environment()
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
     summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
+               "threats": context["threats"],
                "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
                "guidance": guidance or [],
                "missing": [{"env_id": e, "algo": a, "reason": why}

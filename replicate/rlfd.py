@@ -29,8 +29,10 @@ from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
-from replicate.stats import (CONFIDENCE, bootstrap_mean_difference, interquartile_mean,
-                             score_profile, stratified_bootstrap_ci, substream)
+from replicate.claims import (EQUIVALENT, FAILS, HOLDS, SMALLEST_EFFECT, Check, decide,
+                              what_would_decide)
+from replicate.stats import (CONFIDENCE, interquartile_mean, score_profile,
+                             seed_matched_difference, stratified_bootstrap_ci, substream)
 from replicate.templating import report_environment
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
@@ -151,25 +153,37 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
                                                  key=lambda r: r.spec["seed"])]
         return normalised(np.array(finals), ref["random"], ref["demo"])
 
+    def by_seed(task: str, algo: str) -> dict[int, float]:
+        seeds = sorted(r.spec["seed"] for r in by_cell[(task, algo)])
+        return dict(zip(seeds, scores(task, algo).tolist()))
+
     cells = [{"env_id": t, "algo": a, "n": len(by_cell[(t, a)]),
               "final_normalised": float(np.mean(scores(t, a))),
               "runs": sorted(r.path.name for r in by_cell[(t, a)])}
              for t in tasks for a in algos if (t, a) in by_cell]
 
-    verdicts = []
+    # One family of checks, Holm-adjusted: "DRL-EG minus X above 0" per task and method,
+    # paired where the two ran the same seeds; within +-SMALLEST_EFFECT: equivalent.
+    checks = []
     for task in tasks:
         if (task, "drl-eg") not in by_cell:
             continue
         for algo in algos:
             if algo == "drl-eg" or (task, algo) not in by_cell:
                 continue
-            diff = bootstrap_mean_difference(scores(task, "drl-eg"), scores(task, algo),
-                                             substream(seed, task, algo, "verdict"))
-            verdict = ("DRL-EG better" if diff.low > 0 else "DRL-EG worse" if diff.high < 0
-                       else "inconclusive")
-            verdicts.append({"env_id": task, "other": algo, "effect": float(diff.value),
-                             "low": float(diff.low), "high": float(diff.high),
-                             "verdict": verdict})
+            diff = seed_matched_difference(
+                by_seed(task, "drl-eg"), by_seed(task, algo),
+                f"{task}: DRL-EG minus {algo}, final normalised score")
+            checks.append(Check(f"{task}: DRL-EG minus {algo}", diff, above=0.0,
+                                smallest_effect=SMALLEST_EFFECT))
+    decide(checks)
+    words = {HOLDS: "DRL-EG better", FAILS: "DRL-EG worse", EQUIVALENT: "equivalent"}
+    verdicts = [{"env_id": c.estimate.quantity.split(":")[0],
+                 "other": c.what.rsplit(" minus ", 1)[1], "effect": c.estimate.value,
+                 "low": c.estimate.low, "high": c.estimate.high, "method": c.estimate.label,
+                 "quantity": c.estimate.as_dict(), "p_adjusted": c.adjusted,
+                 "verdict": words.get(c.state, c.state),
+                 "decide": what_would_decide(c, len(checks))} for c in checks]
 
     # Aggregates over the tasks where every method has runs, on as many seeds as all have.
     full = [t for t in tasks if all((t, a) in by_cell for a in algos)]
@@ -242,7 +256,7 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     aggregate = result["aggregate"]
     context = {
         "title": f"DRL-EG against IBRL, RLPD and JSRL, profile '{profile.name}'",
-        "profile": profile, "budgets": budgets, "result": result, "confidence": CONFIDENCE,
+        "profile": profile, "budgets": budgets, "result": result, "confidence": CONFIDENCE, "smallest_effect": SMALLEST_EFFECT,
         "figure_png_b64": base64.b64encode(_figure(aggregate)).decode() if aggregate else None,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "failed": outcome.failed, "skipped": outcome.skipped,

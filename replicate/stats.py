@@ -9,6 +9,7 @@ from __future__ import annotations
 import warnings
 import zlib
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -32,57 +33,209 @@ class Estimate:
     high: np.ndarray
 
 
-def bootstrap_mean(scores: np.ndarray, rng: np.random.Generator,
-                   confidence: float = CONFIDENCE, n_resamples: int = N_BOOTSTRAP) -> Estimate:
-    """Mean over runs (axis 0) with a percentile-bootstrap confidence interval per column.
+# Means over seeds use Student's t. With 3-5 seeds a percentile bootstrap can only return
+# the seeds' range (it covers the mean about 76-83% of the time for a nominal 95%); the
+# t-interval is exact for normal seeds and stays near nominal under moderate skew
+# (tests/test_stats_coverage.py simulates both). Aggregates over many runs and tasks keep
+# the stratified bootstrap below.
+T_METHOD = "t-interval"
+PAIRED_METHOD = "paired t-interval"
+WELCH_METHOD = "Welch t-interval"
 
-    With a single run the interval is undefined and returned as NaN.
-    """
+
+@dataclass(frozen=True)
+class MeanEstimate:
+    """One quantity: a mean over seeds (or of per-seed differences) with its interval, the
+    method and sample size that produced it, and what its tests need (standard error and
+    degrees of freedom). Every check, effect line, summary and sentence that states the
+    quantity reads this one object."""
+
+    quantity: str
+    value: float
+    low: float
+    high: float
+    method: str
+    n: int  # runs, or pairs for a paired difference
+    se: float  # standard error of ``value``; 0 when every seed (or difference) is equal
+    df: float
+    n_other: int | None = None  # Welch: the second group's runs
+    confidence: float = CONFIDENCE
+
+    @property
+    def label(self) -> str:
+        """E.g. '95% paired t-interval, 4 pairs'."""
+        if self.method == PAIRED_METHOD:
+            size = f"{self.n} pair" + ("s" if self.n != 1 else "")
+        elif self.n_other is not None:
+            size = f"{self.n} vs {self.n_other} seeds"
+        else:
+            size = f"n = {self.n}"
+        return f"{self.confidence:.0%} {self.method}, {size}"
+
+    @property
+    def defined(self) -> bool:
+        return bool(np.isfinite(self.low) and np.isfinite(self.high))
+
+    def p_above(self, threshold: float) -> float:
+        """One-sided p-value against 'the true value is at most ``threshold``'."""
+        return _one_sided_p(self.value - threshold, self.se, self.df)
+
+    def p_below(self, threshold: float) -> float:
+        """One-sided p-value against 'the true value is at least ``threshold``'."""
+        return _one_sided_p(threshold - self.value, self.se, self.df)
+
+    @property
+    def p_two_sided(self) -> float:
+        """Two-sided p-value of 'the true value is 0' (t-test); NaN where it is undefined
+        (fewer than 2 runs, or no spread: a constant group proves nothing by a t-test)."""
+        if not np.isfinite(self.se) or self.se == 0:
+            return float("nan")
+        return float(2 * stats.t.sf(abs(self.value) / self.se, self.df))
+
+    @property
+    def test(self) -> str:
+        """The test of 0 in words, with its p-value or why there is none."""
+        name = {PAIRED_METHOD: "paired t-test", WELCH_METHOD: "Welch t-test"}.get(
+            self.method, "one-sample t-test")
+        if self.n < 2 or (self.n_other is not None and self.n_other < 2):
+            return f"no {name}: fewer than 2 runs"
+        if self.se == 0:
+            what = "paired difference" if self.method == PAIRED_METHOD else "run"
+            return f"no {name}: every {what} is {self.value:.4g}, no spread to test"
+        return f"{name} p = {self.p_two_sided:.2g}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"quantity": self.quantity, "value": self.value, "low": self.low,
+                "high": self.high, "method": self.label, "n": self.n,
+                "n_other": self.n_other, "test": self.test,
+                "p_value": self.p_two_sided}
+
+
+def _one_sided_p(margin: float, se: float, df: float) -> float:
+    """P(T >= margin / se) under Student's t; a zero standard error decides by the sign."""
+    if not np.isfinite(se) or not np.isfinite(df):
+        return float("nan")
+    if se == 0:
+        return 0.0 if margin > 0 else 1.0
+    return float(stats.t.sf(margin / se, df))
+
+
+def _t_bounds(value: float, se: float, df: float, confidence: float) -> tuple[float, float]:
+    if not np.isfinite(se) or not np.isfinite(df):
+        return float("nan"), float("nan")
+    half = float(stats.t.ppf(0.5 + confidence / 2, df)) * se if se > 0 else 0.0
+    return value - half, value + half
+
+
+def t_mean(values: np.ndarray, quantity: str = "", confidence: float = CONFIDENCE,
+           method: str = T_METHOD) -> MeanEstimate:
+    """Mean over runs with a Student-t interval; with a single run the interval is NaN."""
+    values = np.asarray(values, dtype=float).ravel()
+    n = len(values)
+    value = float(values.mean()) if n else float("nan")
+    if n < 2:
+        return MeanEstimate(quantity, value, float("nan"), float("nan"), method, n,
+                            float("nan"), float("nan"), confidence=confidence)
+    se = float(values.std(ddof=1) / np.sqrt(n))
+    low, high = _t_bounds(value, se, n - 1, confidence)
+    return MeanEstimate(quantity, value, low, high, method, n, se, float(n - 1),
+                        confidence=confidence)
+
+
+def paired_mean_difference(a: np.ndarray, b: np.ndarray, quantity: str = "",
+                           confidence: float = CONFIDENCE) -> MeanEstimate:
+    """Mean of a_i - b_i over runs that share seed i (and so initial weights), with a
+    t-interval on the per-seed differences."""
+    diffs = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    return t_mean(diffs, quantity, confidence, PAIRED_METHOD)
+
+
+def welch_mean_difference(a: np.ndarray, b: np.ndarray, quantity: str = "",
+                          confidence: float = CONFIDENCE) -> MeanEstimate:
+    """mean(a) - mean(b) for runs that share nothing, with a Welch t-interval
+    (Welch-Satterthwaite degrees of freedom)."""
+    a, b = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
+    value = float(a.mean() - b.mean())
+    if len(a) < 2 or len(b) < 2:
+        return MeanEstimate(quantity, value, float("nan"), float("nan"), WELCH_METHOD, len(a),
+                            float("nan"), float("nan"), len(b), confidence)
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    se = float(np.sqrt(va + vb))
+    if se == 0:
+        df = float(len(a) + len(b) - 2)
+    else:  # a constant group contributes no variance and no degrees of freedom
+        df = float((va + vb) ** 2 / ((va ** 2 / (len(a) - 1)) + (vb ** 2 / (len(b) - 1))))
+    low, high = _t_bounds(value, se, df, confidence)
+    return MeanEstimate(quantity, value, low, high, WELCH_METHOD, len(a), se, df, len(b),
+                        confidence)
+
+
+def seed_matched_difference(a: dict[int, float], b: dict[int, float], quantity: str = "",
+                            pair: bool = False, confidence: float = CONFIDENCE) -> MeanEstimate:
+    """mean(a) - mean(b) over runs keyed by seed: paired over the shared seeds when ``pair``
+    (the two share initial weights by design) or when both ran exactly the same seeds (same
+    env streams); Welch over every run of each otherwise."""
+    common = sorted(set(a) & set(b))
+    if pair or (set(a) == set(b) and len(common) >= 2):
+        return paired_mean_difference(np.array([a[s] for s in common]),
+                                      np.array([b[s] for s in common]), quantity, confidence)
+    return welch_mean_difference(np.array([a[s] for s in sorted(a)]),
+                                 np.array([b[s] for s in sorted(b)]), quantity, confidence)
+
+
+def t_mean_columns(scores: np.ndarray, confidence: float = CONFIDENCE) -> Estimate:
+    """Per column of a (runs, points) matrix, the mean over runs with its t-interval (the
+    band of a learning curve); NaN bounds with a single run."""
     scores = np.asarray(scores, dtype=float)
     if scores.ndim == 1:
-        scores = scores[:, None]  # a vector is one column of runs
+        scores = scores[:, None]
     mean = scores.mean(axis=0)
-    if scores.shape[0] < 2:
+    n = scores.shape[0]
+    if n < 2:
         nan = np.full_like(mean, np.nan)
         return Estimate(mean, nan, nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # constant columns (e.g. all zeros) are fine: CI = value
-        result = stats.bootstrap((scores,), np.mean, axis=0, confidence_level=confidence,
-                                 n_resamples=n_resamples, method="percentile", rng=rng)
-    low = np.minimum(result.confidence_interval.low, mean)
-    high = np.maximum(result.confidence_interval.high, mean)
-    return Estimate(mean, low, high)
+    half = stats.t.ppf(0.5 + confidence / 2, n - 1) * scores.std(axis=0, ddof=1) / np.sqrt(n)
+    return Estimate(mean, mean - half, mean + half)
 
 
-def bootstrap_mean_difference(a: np.ndarray, b: np.ndarray, rng: np.random.Generator,
-                              confidence: float = CONFIDENCE,
-                              n_resamples: int = N_BOOTSTRAP) -> Estimate:
-    """mean(a) - mean(b) for two independent samples, with a percentile-bootstrap CI
-    (each sample resampled within itself)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    diff = np.array(a.mean() - b.mean())
-    if len(a) < 2 or len(b) < 2:
-        return Estimate(diff, np.array(np.nan), np.array(np.nan))
-
-    def statistic(x, y, axis=-1):
-        return np.mean(x, axis=axis) - np.mean(y, axis=axis)
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = stats.bootstrap((a, b), statistic, confidence_level=confidence,
-                                 n_resamples=n_resamples, method="percentile", rng=rng)
-    return Estimate(diff, np.array(min(result.confidence_interval.low, diff)),
-                    np.array(max(result.confidence_interval.high, diff)))
+def holm(p_values: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (family-wise error control); NaN stays NaN and
+    does not count towards the family."""
+    p = np.asarray(p_values, dtype=float)
+    finite = np.flatnonzero(np.isfinite(p))
+    adjusted = np.full(len(p), np.nan)
+    m = len(finite)
+    running = 0.0
+    for rank, index in enumerate(finite[np.argsort(p[finite], kind="stable")]):
+        running = max(running, min(1.0, (m - rank) * p[index]))
+        adjusted[index] = running
+    return adjusted.tolist()
 
 
-def welch_test(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """Welch's t statistic and two-sided p-value; NaN when either sample has < 2 runs
-    or both are constant."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    if len(a) < 2 or len(b) < 2 or (np.ptp(a) == 0 and np.ptp(b) == 0):
-        return float("nan"), float("nan")
-    result = stats.ttest_ind(a, b, equal_var=False)
-    return float(result.statistic), float(result.pvalue)
+def seeds_to_decide(estimate: MeanEstimate, distance: float, confidence: float | None = None,
+                    limit: int = 200) -> int | None:
+    """How many seeds (per group; pairs for a paired difference) would make the interval
+    narrow enough to decide a check whose estimate lies ``distance`` from what decides it,
+    if the observed mean and spread held: the smallest n whose t-interval half-width is
+    below ``distance``. None when no n up to ``limit`` does (an effect at the threshold) or
+    the spread is unknown."""
+    confidence = estimate.confidence if confidence is None else confidence
+    if not np.isfinite(estimate.se) or estimate.n < 2 or distance <= 0:
+        return None
+    if estimate.se == 0:
+        return estimate.n
+    if estimate.n_other is None:
+        variance = estimate.se ** 2 * estimate.n  # the per-seed variance, as observed
+        for n in range(2, limit + 1):
+            if stats.t.ppf(0.5 + confidence / 2, n - 1) * np.sqrt(variance / n) < distance:
+                return n
+        return None
+    # Welch: both groups grow to n seeds each, keeping their observed variances
+    variance = estimate.se ** 2 / (1 / estimate.n + 1 / estimate.n_other)
+    for n in range(2, limit + 1):
+        if stats.t.ppf(0.5 + confidence / 2, 2 * n - 2) * np.sqrt(2 * variance / n) < distance:
+            return n
+    return None
 
 
 def _as_matrix(scores: np.ndarray) -> np.ndarray:
@@ -162,19 +315,6 @@ def stratified_bootstrap_ci(statistic, samples: tuple[np.ndarray, ...],
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(draws, [tail, 100 - tail], axis=0)
     return Estimate(value, np.minimum(low, value), np.maximum(high, value))
-
-
-def paired_difference(x: np.ndarray, y: np.ndarray, rng: np.random.Generator,
-                      confidence: float = CONFIDENCE, n_resamples: int = N_BOOTSTRAP
-                      ) -> tuple[Estimate, float]:
-    """Mean of x_i - y_i over pairs that share a seed (Fig. 4), with a bootstrap CI over
-    pairs, and the two-sided p-value of the Wilcoxon signed-rank test (NaN when undefined)."""
-    diffs = np.asarray(x, dtype=float) - np.asarray(y, dtype=float)
-    estimate = bootstrap_mean(diffs, rng, confidence, n_resamples)
-    estimate = Estimate(estimate.value[0], estimate.low[0], estimate.high[0])
-    if len(diffs) < 2 or np.all(diffs == 0):
-        return estimate, float("nan")
-    return estimate, float(stats.wilcoxon(diffs).pvalue)
 
 
 def hedges_g(a: np.ndarray, b: np.ndarray) -> float:

@@ -105,3 +105,50 @@ def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
 
     standing = choose_t2_rule(t2_rule_gains(STORE, RULE_PROFILE), np.random.default_rng(0))
     assert experiments.MUJOCO_T2_RULE == standing["choice"], standing["leader"]
+
+
+def _quantities(node, found):
+    """Every stated quantity (a dict naming its ``quantity`` with an interval) in a summary."""
+    if isinstance(node, dict):
+        if isinstance(node.get("quantity"), str) and node["quantity"] and "low" in node:
+            found.setdefault(node["quantity"], set()).add((node["value"], node["low"], node["high"]))
+        for value in node.values():
+            _quantities(value, found)
+    elif isinstance(node, list):
+        for value in node:
+            _quantities(value, found)
+    return found
+
+
+def test_no_quantity_appears_with_two_intervals():
+    """Across every committed summary (Fig. 3 and Fig. 4 of one profile share claim 5), one
+    quantity has one value and one interval wherever it is stated."""
+    by_profile: dict[str, dict] = {}
+    for report in _committed():
+        summary = json.loads((report / "summary.json").read_text())
+        _quantities(summary, by_profile.setdefault(summary["profile"], {}))
+    stated = {profile: q for profile, q in by_profile.items() if q}
+    assert stated, "no summary states a quantity"
+    for profile, found in stated.items():
+        doubled = {name: values for name, values in found.items() if len(values) > 1}
+        assert not doubled, (profile, doubled)
+
+
+def test_no_interval_over_few_seeds_is_just_the_seeds_range():
+    checked = 0
+    for report in _committed():
+        summary = json.loads((report / "summary.json").read_text())
+        for cell in summary.get("final_returns", []):
+            finals = cell["finals"]
+            if len(finals) >= 2 and max(finals) > min(finals):
+                checked += 1
+                assert cell["ci95"] != [min(finals), max(finals)], cell
+                assert cell["ci95"][0] < min(finals) or cell["ci95"][1] > max(finals), cell
+    assert checked
+
+
+def test_fig4_and_fig3_state_one_verdict_for_claim_5():
+    for profile_dir in (ROOT / "reports", ROOT / "reports" / "reduced"):
+        fig3 = json.loads((profile_dir / "fig3" / "summary.json").read_text())
+        fig4 = json.loads((profile_dir / "fig4" / "summary.json").read_text())
+        assert fig3["claims"][4]["verdict"] == fig4["claim"]["verdict"]

@@ -79,7 +79,7 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     steps = np.array([0, 100_000, 200_000])
     curves = np.array([[0, 900, 2000.0], [0, 1100, 2400.0]])
     groups = {("Ant-v5", "sac"): Group("Ant-v5", "sac", [0, 1], curves[:, -1], curves, steps)}
-    rows = published_rows(groups, {"Ant-v5": 200_000}, 0)
+    rows = published_rows(groups, {"Ant-v5": 200_000})
     tianshou = [r for r in rows if r["source"] == "tianshou"]
     assert [r["steps"] for r in tianshou] == [100_000, 200_000]  # none beyond our budget
     assert tianshou[1]["ours"]["mean"] == 2200.0 and tianshou[1]["ours"]["n"] == 2
@@ -94,11 +94,11 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     walker = {("Walker2d-v5", "sac"): Group("Walker2d-v5", "sac", [0, 1], curves[:, -1],
                                              curves, steps)}
     by_steps = {r["steps"]: r["expert_run"] for r in published_rows(walker, {"Walker2d-v5":
-                                                                             200_000}, 0)}
+                                                                             200_000})}
     trained = expert_training_curve("Walker2d-v5")  # the best of a seed batch, 180k steps
     assert by_steps[100_000]["best_of"] == trained["best_of"] > 1
     assert (by_steps[200_000] is None) == (200_000 not in trained["steps"])
-    eff = efficiency_rows(groups, {"Ant-v5": 4400.0}, 0)
+    eff = efficiency_rows(groups, {"Ant-v5": 4400.0})
     assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200
 
 
@@ -108,11 +108,11 @@ def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]
     other = [_run("ppo", seed, [0.0, 10.0 * seed, 30.0 - seed]) for seed in range(4)]
-    alone, joined = summarise(cell, 0)[1][0], summarise(other + cell, 0)[1]
+    alone, joined = summarise(cell)[1][0], summarise(other + cell)[1]
     assert [(f.low, f.high) for f in joined if f.algo == "sac"] == [(alone.low, alone.high)]
     demo = {"MountainCarContinuous-v0": 95.0}
-    area = efficiency_rows(claim_groups(cell), demo, 0)[0]["area"]
-    assert [r["area"] for r in efficiency_rows(claim_groups(other + cell), demo, 0)
+    area = efficiency_rows(claim_groups(cell), demo)[0]["area"]
+    assert [r["area"] for r in efficiency_rows(claim_groups(other + cell), demo)
             if r["algo"] == "sac"] == [area]
 
 

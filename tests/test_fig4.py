@@ -24,7 +24,8 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     assert all(why.startswith("seeds 2, 3 not in the store yet") and "replicate-fig4" in why
                for _, why in missing)
     assert 'id="incomplete"' in html and "Incomplete: 2 paired" in html
-    assert "with 2 pairs the smallest possible two-sided p is 0.5" in html
+    assert summary["paired"]["method"] == "95% paired t-interval, 2 pairs"
+    assert "paired t-test" in summary["paired"]["test"] and summary["paired"]["test"] in html
 
 
 def test_fig4_dry_run_plans_the_paired_batches_and_writes_nothing(tmp_path, capsys):

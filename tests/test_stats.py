@@ -1,50 +1,84 @@
 import numpy as np
 import pytest
+from scipy import stats as scipy_stats
 
-from replicate.stats import bootstrap_mean, bootstrap_mean_difference, welch_test
-
-
-def test_bootstrap_mean_interval_contains_the_mean_and_is_reproducible():
-    scores = np.random.default_rng(0).normal(size=(6, 4))
-    a = bootstrap_mean(scores, np.random.default_rng(1))
-    b = bootstrap_mean(scores, np.random.default_rng(1))
-    np.testing.assert_allclose(a.value, scores.mean(0))
-    assert np.all(a.low <= a.value) and np.all(a.value <= a.high) and np.all(a.low < a.high)
-    np.testing.assert_array_equal(a.low, b.low)
+from replicate.stats import (holm, paired_mean_difference, seed_matched_difference,
+                             seeds_to_decide, t_mean, t_mean_columns, welch_mean_difference)
 
 
-def test_bootstrap_interval_narrows_with_more_runs():
-    rng = np.random.default_rng(0)
-    few = bootstrap_mean(rng.normal(size=5), np.random.default_rng(1))
-    many = bootstrap_mean(rng.normal(size=500), np.random.default_rng(1))
-    assert (many.high - many.low)[0] < (few.high - few.low)[0]
+def test_t_mean_hand_computed_and_labelled():
+    est = t_mean(np.array([1.0, 2.0, 3.0]), "x")
+    # mean 2, sd 1, se 1/sqrt(3), t(0.975, 2) = 4.3027
+    half = 4.302652729911275 / np.sqrt(3)
+    assert est.value == 2.0 and est.low == pytest.approx(2 - half) and est.high == pytest.approx(2 + half)
+    assert est.label == "95% t-interval, n = 3"
+    assert est.test.startswith("one-sample t-test p = ")
 
 
-def test_constant_scores_give_a_zero_width_interval_and_one_run_none():
-    const = bootstrap_mean(np.zeros((4, 3)), np.random.default_rng(0))
-    np.testing.assert_array_equal(const.low, 0.0)
-    np.testing.assert_array_equal(const.high, 0.0)
-    single = bootstrap_mean(np.ones((1, 3)), np.random.default_rng(0))
-    assert np.isnan(single.low).all()
+def test_three_seeds_give_an_interval_wider_than_their_range():
+    values = np.array([1002.59, 1046.65, 1094.01])  # the range a percentile bootstrap returns
+    est = t_mean(values)
+    assert est.low < values.min() and est.high > values.max()
 
 
-def test_mean_difference_and_welch():
-    a, b = np.array([10.0, 11.0, 12.0, 13.0]), np.array([0.0, 1.0, -1.0, 0.5])
-    diff = bootstrap_mean_difference(a, b, np.random.default_rng(0))
-    assert diff.value == a.mean() - b.mean() and diff.low > 5 and diff.high < 15
-    t, p = welch_test(a, b)
-    assert t > 0 and p < 0.01
-    assert np.isnan(welch_test(np.zeros(3), np.zeros(3))[1])
+def test_constant_and_single_runs():
+    const = t_mean(np.zeros(4))
+    assert const.low == const.high == 0.0
+    assert "no spread" in const.test and np.isnan(const.p_two_sided)
+    single = t_mean(np.ones(1))
+    assert np.isnan(single.low) and not single.defined and "fewer than 2" in single.test
+    band = t_mean_columns(np.zeros((1, 3)))
+    assert np.isnan(band.low).all()
 
 
-def test_paired_difference_and_wilcoxon():
-    from replicate.stats import paired_difference
-    x = np.array([5.0, 6.0, 7.0, 8.0, 9.0, 10.0])
-    estimate, p_value = paired_difference(x, x - 1.0, np.random.default_rng(0))
-    assert estimate.value == 1.0 and estimate.low == 1.0 and estimate.high == 1.0
-    assert p_value < 0.05
-    _, undefined = paired_difference(x, x, np.random.default_rng(0))
-    assert np.isnan(undefined)
+def test_paired_uses_the_per_seed_differences():
+    sac = np.array([1000.0, 2000.0, 3000.0])
+    drl = sac + np.array([-357.0, -358.0, 261.0])
+    paired = paired_mean_difference(drl, sac)
+    welch = welch_mean_difference(drl, sac)
+    assert paired.value == pytest.approx(welch.value)
+    assert paired.high - paired.low < (welch.high - welch.low) / 2  # seeds' spread cancels
+    assert paired.label == "95% paired t-interval, 3 pairs"
+    assert paired.p_two_sided == pytest.approx(scipy_stats.ttest_rel(drl, sac).pvalue)
+    equal = paired_mean_difference(sac, sac)
+    assert (equal.value, equal.low, equal.high) == (0.0, 0.0, 0.0)
+    assert "every paired difference is 0" in equal.test
+
+
+def test_welch_matches_scipy_and_seed_matching_chooses_the_design():
+    a, b = np.array([10.0, 11.0, 12.0, 13.0]), np.array([0.0, 1.0, -1.0, 0.5, 2.0])
+    est = welch_mean_difference(a, b)
+    assert est.p_two_sided == pytest.approx(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue)
+    assert est.label == "95% Welch t-interval, 4 vs 5 seeds"
+    same = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 2: 1.0})
+    assert same.label.startswith("95% paired")
+    differ = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 5: 1.0})
+    assert differ.label.startswith("95% Welch")
+    forced = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 5: 1.0}, pair=True)
+    assert forced.label == "95% paired t-interval, 2 pairs"
+
+
+def test_one_sided_p_values_agree_with_the_interval():
+    est = t_mean(np.array([3.0, 4.0, 5.0, 6.0]))
+    assert est.p_above(est.low) == pytest.approx(0.025)
+    assert est.p_below(est.high) == pytest.approx(0.025)
+
+
+def test_holm_hand_computed():
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    adjusted = holm([0.2, float("nan"), 0.01])
+    assert adjusted[0] == pytest.approx(0.2) and np.isnan(adjusted[1])
+    assert adjusted[2] == pytest.approx(0.02)
+
+
+def test_seeds_to_decide_grows_as_the_effect_shrinks():
+    est = t_mean(np.array([0.0, 2.0, 4.0]))  # mean 2, sd 2
+    far, near = seeds_to_decide(est, 3.0), seeds_to_decide(est, 0.5)
+    assert far is not None and near is not None and far < near
+    # at that n the half-width is below the distance, one fewer it is not
+    half = scipy_stats.t.ppf(0.975, near - 1) * 2 / np.sqrt(near)
+    assert half < 0.5 <= scipy_stats.t.ppf(0.975, near - 2) * 2 / np.sqrt(near - 1)
+    assert seeds_to_decide(est, 1e-6) is None
 
 
 def test_hedges_g_hand_computed():
