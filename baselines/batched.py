@@ -584,7 +584,7 @@ def load_agent_state(agent: StackedActor, state: dict[str, Any]) -> None:
                 raise
             raise ValueError(
                 f"this batch checkpoint's {name} predates the CPU batches' two Adam groups "
-                "(README, Seed batches), so it cannot resume; delete the batch's "
+                "(docs/reproducibility.md), so it cannot resume; delete the batch's "
                 "checkpoint directory (.batch-* in the run store) to start it over") from None
     if "log_alpha" in state:
         with torch.no_grad():

@@ -1,4 +1,4 @@
-"""Checks of the batched trainer on a GPU, run before its bench on a lent GPU machine:
+"""Checks of the batched trainer on a GPU, to run before its bench on a GPU machine:
 a batched gradient step on CUDA against the same step on CPU, and a short batch trained
 through the runner (graph capture, checkpoint, provenance).
 

@@ -1,6 +1,6 @@
 """Would training several seeds in one process, with batched networks, pay on a CPU?
 
-A stand-alone measurement behind a design decision (README, Performance): one twin-Q,
+A stand-alone measurement behind a design decision (docs/performance.md): one twin-Q,
 learned-temperature SAC update for K seeds at once, every layer of every network a batched
 matrix product over the seeds (critics over 2K members), one torch thread, batch 256, 2x256
 networks, Hopper's sizes. It prints the time of one K-seed update and its time per seed.

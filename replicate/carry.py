@@ -1,5 +1,5 @@
 """Carried checkpoints: an unfinished run or seed batch packed small enough to commit, so
-that training goes on in the next sitting on another machine.
+that training goes on later, on this machine or another.
 
 A checkpoint (``baselines.common.checkpoint``) is mostly its replay buffer: an Ant member
 at 200k steps holds 180 MB of transitions. But every transition the env gave is fixed by
@@ -9,7 +9,7 @@ flags; unpacking steps fresh envs through the actions again and checks the rebui
 against the SHA-256 of the original, so a resumed run trains on exactly the data it had.
 Everything else of the checkpoint (networks, optimisers, every random stream, the curve so
 far) is kept as it was, xz-compressed, with the run directories' small files (spec, curve,
-sittings) beside it.
+the parts trained so far) beside it.
 
 Layout: ``<store>/carry/<batch id or run id>/`` holding ``manifest.json``,
 ``state.pt.xz``, ``actions-<k>.npy.xz`` per member and ``partial/<run id>/``. ``python -m replicate carry`` packs every
@@ -431,7 +431,7 @@ ACCEPT_REBUILT = "REPLICATE_CARRY_ACCEPT_REBUILT"  # set to 1: resume on a repla
 
 
 def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
-    """How the rebuilt replay compares with the packed one, for the runs' sittings; raises
+    """How the rebuilt replay compares with the packed one, for the runs' records; raises
     where it differs, unless the user accepts that."""
     if digest == manifest["replay_sha256"]:
         return "rebuilt bit for bit"
@@ -446,15 +446,16 @@ def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
 
 
 def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
-    """Mark the last sitting of an unpacked run: where it was packed, and its replay."""
-    sittings_path = work / "sittings.json"
-    if not sittings_path.is_file():
+    """Mark the last part of an unpacked run's training: where it was packed, and its
+    replay."""
+    parts_path = work / "sittings.json"
+    if not parts_path.is_file():
         return
-    sittings = json.loads(sittings_path.read_text())
-    if sittings:
-        sittings[-1]["carried"] = {"step": manifest["step"], "packed_on": manifest["cpu_model"],
-                                   "unpacked_on": provenance.cpu_model(), "replay": replay}
-        sittings_path.write_text(json.dumps(sittings, indent=1) + "\n")
+    parts = json.loads(parts_path.read_text())
+    if parts:
+        parts[-1]["carried"] = {"step": manifest["step"], "packed_on": manifest["cpu_model"],
+                                "unpacked_on": provenance.cpu_model(), "replay": replay}
+        parts_path.write_text(json.dumps(parts, indent=1) + "\n")
 
 
 def unpack_batch(store: Path, ident: str) -> bool:

@@ -52,7 +52,7 @@ ALWAYS_GUIDE = 1e6  # a T2 no distance reaches: every state is guided while the 
 # quick keeps the spacing rule (1x).
 SPACING_MULTIPLES = (1, 4, 16, 64)
 T2_RULE_SETTINGS = tuple(f"{m}x" for m in SPACING_MULTIPLES) + ("always",)
-MUJOCO_T2_RULE: str | None = "1x"  # the committed ablation's choice (README: T2 on MuJoCo)
+MUJOCO_T2_RULE: str | None = "1x"  # the committed ablation's choice (docs/decisions.md)
 MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
 RULED_PROFILES = ("reduced", "paper")  # the budgets at which the ablation's rule applies
 T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
@@ -977,7 +977,7 @@ def figure4_command(profile: str, env_id: str) -> str:
 
 def figure4_report_grid(profile: Profile, env_id: str, seeds: int | None) -> list[RunSpec]:
     """The pairs a Fig. 4 report covers: the paper's four seeds at least, so a command that
-    trains fewer (``--seeds 1``, one pair per sitting) writes a report that lists the rest as
+    trains fewer (``--seeds 1``, one pair at a time) writes a report that lists the rest as
     missing rather than one that looks complete."""
     n_seeds = FIG4_SEEDS if seeds is None else seeds
     return figure4_grid(profile, env_id, max(n_seeds, FIG4_SEEDS) if n_seeds > 0 else n_seeds)
@@ -1017,7 +1017,7 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
     if waits_for_t2_rule(profile, env_id, "drl-eg"):
         raise HarnessError(f"Fig. 4 on {env_id} at the {profile} budget {T2_WAIT_REASON}",
                            "run the ablation first, then fix MUJOCO_T2_RULE in "
-                           "replicate/experiments.py (README: T2 on MuJoCo)")
+                           "replicate/experiments.py (docs/decisions.md: T2 on MuJoCo)")
     to_train = figure4_grid(chosen, env_id, seeds)
     specs = figure4_report_grid(chosen, env_id, seeds)
     outcome = train_cells(specs, to_train, Path(store), figure4_command(profile, env_id),

@@ -3,7 +3,7 @@
 The paper took its MuJoCo demonstrations from "the best trained SAC or TD3 agent" and never
 released them. Here an expert is a SAC run that checkpoints into a work directory
 (``experts/<env>/`` by default, not committed: it holds the replay buffer) and resumes from
-there when started again, so an expert can be trained over several sittings. The policy
+there when started again, so an expert can be trained in several parts. The policy
 with the best evaluation so far is kept; exporting writes it with its provenance into the
 package (``replicate/data/experts``), small enough to commit.
 """
@@ -188,7 +188,7 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
     """Train one expert run per seed as one seed batch, keep the member with the best
     evaluation, export it and return the path.
 
-    For a GPU machine lent for minutes: several seeds cost little more time than one, and
+    For a GPU machine: several seeds cost little more time than one, and
     the best of them is kept (as the paper kept "the best trained" agent). With
     ``time_limit_s`` the batch stops at the first step after that many seconds; every
     member's best policy so far is on disk at each evaluation, so stopping loses nothing

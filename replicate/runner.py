@@ -239,9 +239,9 @@ class _RunRecorder:
     def __init__(self, prepared: PreparedRun, run_dir: Path, device: str,
                  batch: dict[str, Any] | None = None):
         self.prepared, self.run_dir, self.device, self.batch = prepared, run_dir, device, batch
-        self.sittings_path = run_dir / SITTINGS_FILE
-        self.earlier = (json.loads(self.sittings_path.read_text())
-                        if self.sittings_path.is_file() else [])
+        self.parts_path = run_dir / SITTINGS_FILE
+        self.earlier = (json.loads(self.parts_path.read_text())
+                        if self.parts_path.is_file() else [])
         self.started = time.time()
         self.started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.resumed_from = 0
@@ -272,7 +272,7 @@ class _RunRecorder:
                 "device": describe_device(self.device)}
         if self.batch is not None:
             part["batch"] = self.batch["id"]
-        self.sittings_path.write_text(json.dumps(self.earlier + [part], indent=1) + "\n")
+        self.parts_path.write_text(json.dumps(self.earlier + [part], indent=1) + "\n")
 
     def on_eval(self, point: EvalPoint) -> None:
         kept = point.step <= self.resumed_from and point.step in self.earlier_walls
@@ -294,7 +294,7 @@ class _RunRecorder:
         """The last part of the training and provenance.json: the run is complete."""
         self.record_part()
         prepared, spec = self.prepared, self.prepared.spec
-        parts = json.loads(self.sittings_path.read_text())
+        parts = json.loads(self.parts_path.read_text())
         wall = sum(s["wall_time_s"] for s in parts)
         payload = {
             "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
@@ -425,8 +425,8 @@ def execute_batch(members: list[PreparedRun], store: Path,
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
         if carry.should_unpack(store, ident, batch_dir / CHECKPOINT_FILE):
             carry.unpack_batch(store, ident)  # packed before, maybe on another machine
-        batch_sittings = batch_dir / SITTINGS_FILE
-        earlier = json.loads(batch_sittings.read_text()) if batch_sittings.is_file() else []
+        batch_parts = batch_dir / SITTINGS_FILE
+        earlier = json.loads(batch_parts.read_text()) if batch_parts.is_file() else []
         resolved = resolve_device(device, has_gpu_path=True)
         try:
             resolved = resume_device(resolved, _checkpoint_device(batch_dir, earlier),
@@ -435,7 +435,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
             raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
                                f"delete {batch_dir}") from None
         # this part is recorded before training: a checkpoint it leaves names its device
-        batch_sittings.write_text(json.dumps(earlier + [{
+        batch_parts.write_text(json.dumps(earlier + [{
             "wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1) + "\n")
         info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
         work_dirs = [partial_directory(p, store) for p in members]
@@ -463,7 +463,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
         try:
             trainer(bctx, [p.config for p in members])
         except TimeLimitReached:  # each part's wall time up to the stop; the checkpoint stays
-            batch_sittings.write_text(json.dumps(earlier + [{
+            batch_parts.write_text(json.dumps(earlier + [{
                 "wall_time_s": round(time.time() - started, 3),
                 "device": describe_device(resolved)}], indent=1) + "\n")
             for recorder in recorders:
@@ -484,7 +484,7 @@ def execute_batch(members: list[PreparedRun], store: Path,
         finally:
             for recorder in recorders:
                 recorder.close()
-        batch_sittings.write_text(json.dumps(earlier + [{
+        batch_parts.write_text(json.dumps(earlier + [{
             "wall_time_s": round(time.time() - started, 3),
             "device": describe_device(resolved)}], indent=1) + "\n")
         runs, failed = [], []

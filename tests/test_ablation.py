@@ -87,7 +87,7 @@ def test_a_failed_grid_point_is_trained_when_the_sweep_runs_again(tmp_path):
     study = optuna.create_study(
         study_name=f"ablate-threshold-smoke-MountainCarContinuous-v0-s1-{grid_id}",
         storage=f"sqlite:///{store / 'ablate-threshold.db'}", direction="maximize")
-    study.add_trial(optuna.trial.create_trial(  # an earlier sitting failed at T2 = always
+    study.add_trial(optuna.trial.create_trial(  # an earlier call failed at T2 = always
         state=optuna.trial.TrialState.FAIL,
         params={"guide_threshold": 1000000.0, "guide_noise_std": 0.1},
         distributions={k: optuna.distributions.CategoricalDistribution(v)

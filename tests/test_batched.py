@@ -301,8 +301,8 @@ def test_kill_9_and_resume_a_batch_ends_on_the_uninterrupted_curves(tmp_path):
         b = (killed / name / "curve.csv").read_text().splitlines()
         strip = lambda lines: [line.rsplit(",", 1)[0] for line in lines]  # wall time differs
         assert strip(a) == strip(b)
-        sittings = json.loads((killed / name / "sittings.json").read_text())
-        assert len(sittings) == 2 and sittings[1]["resumed_from_step"] >= 600
+        parts = json.loads((killed / name / "sittings.json").read_text())
+        assert len(parts) == 2 and parts[1]["resumed_from_step"] >= 600
 
 
 def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
@@ -415,7 +415,7 @@ def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_a_batch_trains_on_the_gpu_with_graphs(tmp_path):
-    """Run on a lent GPU machine by benchmarks/gpu_checks.py too (reports/bench/batched_gpu.json)."""
+    """Run on a GPU machine by benchmarks/gpu_checks.py too (reports/bench/batched_gpu.json)."""
     members = [prepare(s) for s in _specs(algo="sac-twin-q", steps=600, seeds=(0, 1))]
     outcome = execute_batch(members, tmp_path, device="cuda")
     assert not outcome.failed and len(outcome.runs) == 2

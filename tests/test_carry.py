@@ -59,9 +59,9 @@ def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tm
     assert len(outcome.runs) == 2 and not outcome.failed
     assert _curves(second) == _curves(whole)
     for run in outcome.runs:
-        sittings = json.loads((run.path / "sittings.json").read_text())
-        assert [s["resumed_from_step"] for s in sittings] == [0, 400]
-        assert sittings[0]["carried"]["replay"] == "rebuilt bit for bit"
+        parts = json.loads((run.path / "sittings.json").read_text())
+        assert [s["resumed_from_step"] for s in parts] == [0, 400]
+        assert parts[0]["carried"]["replay"] == "rebuilt bit for bit"
     assert state.name not in {p.name for p in carry.carry_root(second).iterdir()}  # done
 
     # where the replay rebuilds differently and the user accepts it, the batch resumes too

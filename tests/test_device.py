@@ -135,14 +135,14 @@ def test_grid_workers_use_one_device_unless_the_gpu_ones_are_limited(monkeypatch
     assert worker_devices("auto", 3, 2) == ["cpu"] * 3
 
 
-def _interrupted_run(store, sitting_device: str):
-    """A run whose hidden directory holds a checkpoint made by a sitting on ``sitting_device``."""
+def _interrupted_run(store, checkpoint_device: str):
+    """A run whose hidden directory holds a checkpoint made on ``checkpoint_device``."""
     prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
     work = partial_directory(prepared, store)
-    save_checkpoint(work / CHECKPOINT_FILE, {"step": 200, "device": sitting_device})
+    save_checkpoint(work / CHECKPOINT_FILE, {"step": 200, "device": checkpoint_device})
     (work / "sittings.json").write_text(json.dumps([{
         "started_utc": "2026-11-26T00:00:00+00:00", "resumed_from_step": 0, "wall_time_s": 1.0,
-        "git_revision": "x", "device": sitting_device}]))
+        "git_revision": "x", "device": checkpoint_device}]))
     (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,nan,0.5\n")
     return prepared, work
 

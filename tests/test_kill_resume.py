@@ -37,8 +37,8 @@ def test_kill_minus_nine_then_resume(tmp_path):
     checkpoint = None
     while time.time() < deadline and process.poll() is None:
         found = list(store.glob(".partial-*/checkpoint.pt")) if store.exists() else []
-        sittings = list(store.glob(".partial-*/sittings.json")) if store.exists() else []
-        if found and sittings and json.loads(sittings[0].read_text())[-1]["wall_time_s"] > 0:
+        parts = list(store.glob(".partial-*/sittings.json")) if store.exists() else []
+        if found and parts and json.loads(parts[0].read_text())[-1]["wall_time_s"] > 0:
             curve = pd.read_csv(found[0].parent / "curve.csv")
             if curve["step"].max() >= 600:  # well past a few checkpoints
                 checkpoint = found[0]
@@ -52,8 +52,8 @@ def test_kill_minus_nine_then_resume(tmp_path):
     assert train(store).wait(timeout=300) == 0
     run, reference = the_run(store), the_run(reference_store)
     assert run.name == reference.name
-    sittings = json.loads((run / "provenance.json").read_text())["sittings"]
-    assert len(sittings) == 2 and sittings[1]["resumed_from_step"] >= 300
+    parts = json.loads((run / "provenance.json").read_text())["sittings"]
+    assert len(parts) == 2 and parts[1]["resumed_from_step"] >= 300
     ours = pd.read_csv(run / "curve.csv")
     theirs = pd.read_csv(reference / "curve.csv")
     assert ours["step"].tolist() == theirs["step"].tolist()

@@ -1,0 +1,42 @@
+"""The product speaks of its users' world (a laptop, a GPU box, a cluster), not of how the
+project was built: no tracked file outside the run store uses the words listed here."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+WORDS = re.compile(r"\bloans?\b|\blent\b|working sessions?|borrowed GPU|machine time",
+                   re.IGNORECASE)
+SKIPPED = (
+    "runs/",  # the run store: committed provenance records as they were written
+    # to be cleaned with the reports' wording; this exclusion goes when they are
+    "reports/", "replicate/templates/",
+    "tests/test_wording.py",  # the list itself
+)
+
+
+def tracked_files() -> list[Path]:
+    try:
+        listed = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
+                                check=True).stdout.splitlines()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return [ROOT / name for name in listed if not name.startswith(SKIPPED)]
+
+
+def test_no_tracked_file_speaks_of_loans_or_working_sessions():
+    found = []
+    for path in tracked_files():
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (UnicodeDecodeError, FileNotFoundError):  # binary data, or deleted unstaged
+            continue
+        for number, line in enumerate(text.splitlines(), 1):
+            if WORDS.search(line):
+                found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()[:100]}")
+    assert not found, "\n".join(found)
