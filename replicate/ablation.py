@@ -347,20 +347,34 @@ def zero_threshold_equals_sac(cells: list[Cell], sac_runs: list[Run]) -> dict[st
     return {"pairs": len(pairs), "equal": int(sum(equal)), "holds": bool(pairs) and all(equal)}
 
 
-def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float | None) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def t2_shades(n: int) -> list[Any]:
+    """``n`` shades of DRL-EG's colour, light to dark: its settings in the ablation figures
+    (SAC keeps its own colour there)."""
     import seaborn as sns
 
-    from replicate.figures import png_bytes
+    from replicate.figures import algo_color
 
-    sns.set_theme(style="whitegrid", context="notebook")
+    if n == 1:
+        return [algo_color("drl-eg")]
+    return sns.blend_palette(["#f4b183", algo_color("drl-eg"), "#3d1500"], n)
+
+
+def tick_label(label: str) -> str:
+    """A T2 setting's label as a short tick on two lines ('4x' over '(2.6)'; the axis label
+    says what the multiple is of), so that neighbouring ticks stay apart."""
+    return label.replace(" spacing (", "\n(").replace(" (", "\n(")
+
+
+def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float | None) -> bytes:
+    from matplotlib.lines import Line2D
+
+    from replicate.figures import algo_color, panel_grid, png_bytes, set_theme, shared_legend
+
+    set_theme()
     sigmas = sorted({r["sigma"] for r in rows})
     labels = list(dict.fromkeys(r["label"] for r in rows))
-    palette = dict(zip(sigmas, sns.color_palette("colorblind", len(sigmas)), strict=True))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    shades = dict(zip(sigmas, t2_shades(len(sigmas)), strict=True))
+    fig, axes, _ = panel_grid(2, 2, 4.0, legend_height=0.6)
     for ax, key, reference, name in ((axes[0], "final", sac_final, "final return"),
                                      (axes[1], "auc", sac_auc, "area under the curve")):
         for i, sigma in enumerate(sigmas):
@@ -371,15 +385,21 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
                     ys.append(r[key]["mean"])
                     lows.append(r[key]["mean"] - r[key]["low"] if r[key]["n"] > 1 else 0)
                     highs.append(r[key]["high"] - r[key]["mean"] if r[key]["n"] > 1 else 0)
-            ax.errorbar(xs, ys, yerr=[lows, highs], fmt="o-", capsize=3, color=palette[sigma],
-                        label=f"DRL-EG, sigma = {sigma:g}")
+            ax.errorbar(xs, ys, yerr=[lows, highs], fmt="o-", capsize=3, color=shades[sigma],
+                        linewidth=1.8, markersize=6)
         if reference is not None:
-            ax.axhline(reference, color="0.3", linestyle="--", linewidth=1, label="SAC")
-        ax.set_xticks(range(len(labels)), labels)
-        ax.set_xlabel("discriminator threshold T2")
+            ax.axhline(reference, color=algo_color("sac"), linestyle="--", linewidth=1.5)
+        ax.set_xticks(range(len(labels)), [tick_label(label) for label in labels])
+        ax.set_xlabel("discriminator threshold T2" + (
+            ": multiple of the spacing (value)" if any(" spacing (" in label for label in labels)
+            else ""))
         ax.set_ylabel(name)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
+    handles = [Line2D([], [], color=shades[s], marker="o", linewidth=1.8) for s in sigmas]
+    names = [f"DRL-EG, sigma = {s:g} (mean over seeds, t-interval)" for s in sigmas]
+    if sac_final is not None or sac_auc is not None:
+        handles.append(Line2D([], [], color=algo_color("sac"), linestyle="--", linewidth=1.5))
+        names.append("SAC (mean over seeds)")
+    shared_legend(fig, handles, names, columns=min(len(names), 3))
     return png_bytes(fig)
 
 
@@ -399,42 +419,48 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     """Return and guided fraction of training steps against env steps, one line per T2
     (the first sigma of the grid), beside SAC's return; dotted, where the runs recorded it,
     what the training episodes (the executed actions, a guider's included) earned."""
-    import matplotlib
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import seaborn as sns
+    from replicate.figures import (algo_color, format_steps_axis, panel_grid, png_bytes,
+                                   set_theme, shared_legend)
 
-    from replicate.figures import format_steps_axis, png_bytes
-
-    sns.set_theme(style="whitegrid", context="notebook")
+    set_theme()
     first_sigma = min((c.sigma for c in cells), default=0.0)
     shown = [c for c in cells if c.sigma == first_sigma and c.runs]
-    colors = sns.color_palette("viridis", max(len(shown), 1))
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.8))
+    colors = t2_shades(max(len(shown), 1))
+    fig, (left, right), _ = panel_grid(2, 2, 3.9, legend_height=1.0)
+    dotted = False
 
-    def dotted_training_returns(runs: list[Run], color: Any) -> None:
+    def dotted_training_returns(runs: list[Run], color: Any) -> bool:
         steps, earned = _mean_curve(runs, "train_return")
         if np.isfinite(earned).any():
-            left.plot(steps, earned, color=color, linestyle=":", linewidth=1.2)
+            left.plot(steps, earned, color=color, linestyle=":", linewidth=1.3)
+            return True
+        return False
 
+    handles, names = [], []
     for color, cell in zip(colors, shown):
-        label = threshold_label(cell.threshold, spacing)
-        left.plot(*_mean_curve(cell.runs, "return_mean"), color=color, label=label)
-        dotted_training_returns(cell.runs, color)
-        right.plot(*_mean_curve(cell.runs, "guided_fraction"), color=color, label=label)
+        left.plot(*_mean_curve(cell.runs, "return_mean"), color=color, linewidth=2)
+        dotted |= dotted_training_returns(cell.runs, color)
+        right.plot(*_mean_curve(cell.runs, "guided_fraction"), color=color, linewidth=2)
+        handles.append(Line2D([], [], color=color, linewidth=2))
+        names.append(f"T2 = {threshold_label(cell.threshold, spacing)}")
     if sac_runs:
-        left.plot(*_mean_curve(sac_runs, "return_mean"), color="0.3", linestyle="--",
-                  label="SAC")
-        dotted_training_returns(sac_runs, "0.3")
+        sac = algo_color("sac")
+        left.plot(*_mean_curve(sac_runs, "return_mean"), color=sac, linestyle="--",
+                  linewidth=1.8)
+        dotted |= dotted_training_returns(sac_runs, sac)
+        handles.append(Line2D([], [], color=sac, linestyle="--", linewidth=1.8))
+        names.append("SAC")
     format_steps_axis(left)
     left.set_ylabel("return (mean over seeds)")
-    left.set_title("solid: deterministic evaluation; dotted: training episodes", fontsize=9)
+    left.set_title("solid: deterministic evaluation" + ("; dotted: training episodes"
+                                                         if dotted else ""), fontsize=11)
     format_steps_axis(right)
     right.set_ylabel("guided share of training steps")
     right.set_ylim(-0.02, 1.02)
-    left.legend(fontsize=7)
-    fig.tight_layout()
+    right.set_title("share of training steps the guider took", fontsize=11)
+    shared_legend(fig, handles, names, columns=min(len(names), 4))
     return png_bytes(fig)
 
 
@@ -506,7 +532,8 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
                "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
                "sac_runs": context["sac_runs"],
                "failed": [{"run_id": i, "reason": why} for i, why in failed],
-               "t2_rule": t2_rule}
+               "t2_rule": t2_rule, "steps": context["steps"],
+               "generated": context["generated"]}
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
 

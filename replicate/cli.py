@@ -622,6 +622,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
               f"(they would share the quick profile's runs); pass --profile to write them")
     table1 = write_table1_report(args.out / "table1" if args.out else Path("reports/table1"))
     print(f"report: {table1}")
+    from replicate.frontdoor import write_front_door
+
+    print(f"front door: {write_front_door(args.out or Path('reports'))}")
     return 0
 
 
@@ -686,6 +689,20 @@ COMMANDS = {"compare-rlfd": _cmd_rlfd, "train": _cmd_train, "demos": _cmd_demos,
             "algos": _cmd_algos, "envs": _cmd_envs, "carry": _cmd_carry}
 
 
+FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1")
+
+
+def _refreshing_front_door(args: argparse.Namespace, code: int) -> int:
+    """After a figure command wrote into reports/ (no --out, a profile that means
+    something), refresh the front door reports/index.html from the reports there."""
+    if (code == 0 and args.command in FIGURE_COMMANDS and getattr(args, "out", None) is None
+            and getattr(args, "profile", "quick") != "smoke" and Path("reports").is_dir()):
+        from replicate.frontdoor import write_front_door
+
+        print(f"front door: {write_front_door(Path('reports'))}")
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     from replicate.errors import HarnessError, TimeLimitStop
 
@@ -695,12 +712,12 @@ def main(argv: list[str] | None = None) -> int:
         args.store = default_store(getattr(args, "profile", None))
     try:
         if getattr(args, "time_limit", None) is None:
-            return COMMANDS[args.command](args)
+            return _refreshing_front_door(args, COMMANDS[args.command](args))
         limit = parse_time_limit(args.time_limit)  # before anything is trained
         from replicate.experiments import time_limit
 
         with time_limit(time.time() + limit):
-            return COMMANDS[args.command](args)
+            return _refreshing_front_door(args, COMMANDS[args.command](args))
     except TimeLimitStop as stop:
         print(f"time limit reached ({args.time_limit}): {stop}; run the same command again "
               f"to resume: {shlex.join(['python', '-m', 'replicate', *argv])}",

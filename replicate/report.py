@@ -63,7 +63,8 @@ def summarise(runs: list[Run]) -> tuple[list[CurveBand], list[FinalReturns]]:
     for (env_id, algo), members in sorted(group_runs(runs).items()):
         steps, matrix = curve_matrix(members)
         band = t_mean_columns(matrix)
-        bands.append(CurveBand(algo, env_id, steps, band.value, band.low, band.high, len(members)))
+        bands.append(CurveBand(algo, env_id, steps, band.value, band.low, band.high, len(members),
+                               matrix, [r.spec["seed"] for r in members]))
         last = matrix[:, -1]
         est = t_mean(last)
         finals.append(FinalReturns(env_id, algo, [r.spec["seed"] for r in members], last,
@@ -210,8 +211,12 @@ def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
     summary_file = Path(report_dir) / "summary.json"
     if not summary_file.is_file():
         return []
-    summary = json.loads(summary_file.read_text())
-    return [r for r in summary_run_ids(summary) if not (Path(store) / r / "curve.csv").is_file()]
+    try:
+        summary = json.loads(summary_file.read_text())
+        named = summary_run_ids(summary)
+    except (ValueError, TypeError, KeyError, AttributeError):
+        return []  # torn or foreign: it names no run we could lose by rebuilding
+    return [r for r in named if not (Path(store) / r / "curve.csv").is_file()]
 
 
 def write_unless_fewer(out_dir: Path, store: Path,
@@ -447,6 +452,7 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
             k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
         "efficiency": efficiency, "published_sac": published, "guidance": guidance or [],
         "git_revisions": context["revisions"], "seed_counts": context["seed_counts"],
+        "budgets": {b["env_id"]: b["steps"] for b in budgets},
         "threats": context["threats"],
     }
     _atomic_write(out_dir / "summary.json",
@@ -504,6 +510,7 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
     summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
+               "generated": context["generated"], "steps": context["steps"],
                "threats": context["threats"],
                "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
                "guidance": guidance or [],

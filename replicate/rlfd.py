@@ -183,7 +183,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
                  "low": c.estimate.low, "high": c.estimate.high, "method": c.estimate.label,
                  "quantity": c.estimate.as_dict(), "p_adjusted": c.adjusted,
                  "verdict": words.get(c.state, c.state),
-                 "decide": what_would_decide(c, len(checks))} for c in checks]
+                 "decide": (what_would_decide(c, len(checks)) or (None,))[0]} for c in checks]
 
     # Aggregates over the tasks where every method has runs, on as many seeds as all have.
     full = [t for t in tasks if all((t, a) in by_cell for a in algos)]
@@ -219,28 +219,30 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
 
 
 def _figure(aggregate: dict[str, Any]) -> bytes:
-    """IQM with CIs, performance profiles, and the IQM against the share of the budget."""
-    import matplotlib.pyplot as plt
-    import seaborn as sns
+    """IQM with CIs, performance profiles, and the IQM against the share of the budget, two
+    panels a row, with one legend in the free cell."""
+    from replicate.figures import (algo_color, algo_handle, algo_order, draw_iqm,
+                                   draw_profiles, panel_grid, png_bytes, set_theme,
+                                   shared_legend)
 
-    from replicate.figures import draw_iqm, draw_profiles, png_bytes
-
-    sns.set_theme(style="whitegrid", context="notebook")
-    algos = list(aggregate["iqm"])
-    palette = dict(zip(algos, sns.color_palette("colorblind", len(algos)), strict=True))
-    fig, (left, middle, right) = plt.subplots(1, 3, figsize=(15, 3.8))
-    draw_iqm(left, {a: tuple(v) for a, v in aggregate["iqm"].items()}, palette,
+    set_theme()
+    algos = algo_order(list(aggregate["iqm"]))
+    fig, (left, middle, right), slot = panel_grid(3, 2, 3.8)
+    draw_iqm(left, {a: tuple(aggregate["iqm"][a]) for a in algos},
              "IQM of final normalised score")
-    draw_profiles(middle, aggregate["taus"], aggregate["profiles"], palette,
+    draw_profiles(middle, aggregate["taus"],
+                  {a: aggregate["profiles"][a] for a in algos if a in aggregate["profiles"]},
                   "normalised score tau")
-    for algo, (value, low, high) in aggregate["efficiency"].items():
-        right.plot(CURVE_FRACTIONS, value, color=palette[algo], label=algo)
-        right.fill_between(CURVE_FRACTIONS, low, high, color=palette[algo], alpha=0.2,
+    for algo in algos:
+        if algo not in aggregate["efficiency"]:
+            continue
+        value, low, high = aggregate["efficiency"][algo]
+        right.plot(CURVE_FRACTIONS, value, color=algo_color(algo), linewidth=2)
+        right.fill_between(CURVE_FRACTIONS, low, high, color=algo_color(algo), alpha=0.15,
                            linewidth=0)
     right.set_xlabel("share of each task's env-step budget")
     right.set_ylabel("IQM normalised score")
-    right.legend(fontsize=8)
-    fig.tight_layout()
+    shared_legend(fig, [algo_handle(a) for a in algos], algos, slot)
     return png_bytes(fig)
 
 
@@ -297,8 +299,9 @@ def _other_profiles(profile: str, out_dir: Path) -> list[dict[str, Any]]:
             continue
         there = report_dir(name, "rlfd") / "index.html"
         href = Path(os.path.relpath(there, report_dir(profile, "rlfd"))).as_posix()
+        built = default_layout and (Path(out_dir) / href).resolve().is_file()
         others.append({"name": name, "tasks": list(RLFD_BUDGETS[name]),
-                       "path": there.as_posix(), "href": href if default_layout else None})
+                       "path": there.as_posix(), "href": href if built else None})
     return others
 
 

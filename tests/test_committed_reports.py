@@ -152,3 +152,17 @@ def test_fig4_and_fig3_state_one_verdict_for_claim_5():
         fig3 = json.loads((profile_dir / "fig3" / "summary.json").read_text())
         fig4 = json.loads((profile_dir / "fig4" / "summary.json").read_text())
         assert fig3["claims"][4]["verdict"] == fig4["claim"]["verdict"]
+
+
+def test_no_committed_report_links_to_nowhere():
+    dead = []
+    for page in (ROOT / "reports").rglob("index.html"):
+        if "smoke" in page.parts or "bench" in page.parts:
+            continue
+        for href in re.findall(r'href="([^"]+)"', page.read_text()):
+            target = href.split("#")[0]
+            if not target or target.startswith(("http:", "https:", "data:")):
+                continue
+            if not (page.parent / target).resolve().is_file():
+                dead.append(f"{page.relative_to(ROOT)} -> {href}")
+    assert not dead, dead

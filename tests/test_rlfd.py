@@ -69,6 +69,9 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
 def test_each_profile_report_points_to_the_other_profiles_comparisons(tmp_path):
     from replicate.rlfd import _other_profiles
 
+    for built in ("reports/rlfd", "reports/reduced/rlfd"):  # the paper one was never built
+        (tmp_path / built).mkdir(parents=True)
+        (tmp_path / built / "index.html").write_text("<html></html>")
     quick = {o["name"]: o for o in _other_profiles("quick", tmp_path / "reports" / "rlfd")}
     assert set(quick) == {"reduced", "paper"}  # never the smoke one, nor itself
     assert quick["reduced"]["href"] == "../reduced/rlfd/index.html"
@@ -76,7 +79,7 @@ def test_each_profile_report_points_to_the_other_profiles_comparisons(tmp_path):
     assert SPARSE_TASKS[0] in quick["reduced"]["tasks"]
     back = {o["name"]: o["href"] for o in
             _other_profiles("reduced", tmp_path / "reports" / "reduced" / ".rlfd.rebuild")}
-    assert back == {"quick": "../../rlfd/index.html", "paper": "../../paper/rlfd/index.html"}
+    assert back == {"quick": "../../rlfd/index.html", "paper": None}  # no link to nowhere
     # written elsewhere (--out), the other reports are not beside it: no link, only the path
     elsewhere = _other_profiles("reduced", tmp_path / "out" / "quick" / "rlfd")
     assert [o["href"] for o in elsewhere] == [None, None]
@@ -102,7 +105,7 @@ def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, ca
     html = (out / "index.html").read_text()
     assert 'id="smoke-warning"' in html and "data:image/png;base64," in html
     assert 'id="guidance"' in html and [g["t2"] for g in summary["guidance"]] == [[0.05]]
-    assert "<code>reports/reduced/rlfd/index.html</code> in the repository" in html
+    assert "<code>reports/reduced/rlfd/index.html</code> (not built here)" in html
     from replicate.rlfd import rebuild_rlfd
 
     rebuilt = rebuild_rlfd("smoke", store, tmp_path / "again")
