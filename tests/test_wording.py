@@ -14,8 +14,6 @@ WORDS = re.compile(r"\bloans?\b|\blent\b|working sessions?|borrowed GPU|machine 
                    re.IGNORECASE)
 SKIPPED = (
     "runs/",  # the run store: committed provenance records as they were written
-    # to be cleaned with the reports' wording; this exclusion goes when they are
-    "reports/", "replicate/templates/",
     "tests/test_wording.py",  # the list itself
 )
 
