@@ -57,16 +57,18 @@ def parse_time_limit(text: str) -> float:
     cleaned = text.strip().lower()
     negative = cleaned.startswith("-")
     cleaned = cleaned.removeprefix("-").strip()
-    pos, seconds, parts = 0, 0.0, 0
+    pos, seconds, units = 0, 0.0, []
     while pos < len(cleaned):
         match = _DURATION.match(cleaned, pos)
         if match is None:
             break
         seconds += float(match.group(1)) * _UNIT_SECONDS[match.group(2)]
-        pos, parts = match.end(), parts + 1
+        pos = match.end()
+        units.append(match.group(2))
         while pos < len(cleaned) and cleaned[pos] == " ":
             pos += 1
-    if not parts or pos != len(cleaned):
+    # a bare number is seconds only alone: "2h30" might mean minutes
+    if not units or pos != len(cleaned) or (len(units) > 1 and "" in units):
         raise HarnessError(f"--time-limit: cannot read '{text}' as a duration",
                            "write it like 90m, 2h, 1h30m or 5400 (seconds)")
     if negative or seconds <= 0:

@@ -32,7 +32,8 @@ def test_time_limits_read_as_seconds(text, seconds):
     assert parse_time_limit(text) == pytest.approx(seconds)
 
 
-@pytest.mark.parametrize("text", ["0", "0m", "-5m", "-1", "abc", "2x", "h", "", "1h-5m"])
+@pytest.mark.parametrize("text", ["0", "0m", "-5m", "-1", "abc", "2x", "h", "", "1h-5m",
+                                  "2h30"])
 def test_unreadable_zero_or_negative_limits_are_refused(text):
     with pytest.raises(HarnessError):
         parse_time_limit(text)
