@@ -97,7 +97,7 @@ def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
 
 def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
     """MUJOCO_T2_RULE stays unset until the committed reduced ablation has every setting on
-    both envs, and is then the setting its written criterion picks (README: T2 on MuJoCo)."""
+    both envs, and is then the setting its written criterion picks (docs/decisions.md: T2 on MuJoCo)."""
     import numpy as np
 
     from replicate import experiments

@@ -83,7 +83,10 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     tianshou = [r for r in rows if r["source"] == "tianshou"]
     assert [r["steps"] for r in tianshou] == [100_000, 200_000]  # none beyond our budget
     assert tianshou[1]["ours"]["mean"] == 2200.0 and tianshou[1]["ours"]["n"] == 2
-    assert tianshou[1]["mean"] == published_points("Ant-v5", 200_000)[1].mean == 2133.0
+    assert tianshou[1]["mean"] == 2133.0 and tianshou[1]["family"] == "twin-Q SAC"
+    same = [r for r in rows if r["source"] == "spinningup"]  # V-network SAC, as ours
+    assert [(r["steps"], r["mean"]) for r in same] == [(200_000, 793.0)]
+    assert {p.source for p in published_points("Ant-v5", 200_000)} == {"tianshou", "spinningup"}
     from replicate.experts import expert_training_curve
 
     expert = expert_training_curve("Ant-v5")  # the committed expert's own training run
