@@ -37,6 +37,7 @@ from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkp
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
+from baselines.common.random_start import random_start_action
 from baselines.common.stacked import (StackedMLP, StackedNormMLP, StackedPolicy, StackedReplay,
                                       StackedSymmetricReplay, critic_ensembles, critic_pairs,
                                       member_adam, pair_critics)
@@ -819,8 +820,14 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
         last_checkpoint = start - 1
         idle_action = np.zeros(agent.act_dim, dtype=np.float32)
 
+        _, _, low, high = _space(env_id)
         for step in range(start, total_steps + 1):
-            actions, guided = explorer.choose(obs)
+            if step <= cfg.random_start_steps:  # each member draws its one-run actions
+                actions = np.stack([random_start_action(seed, step, low, high)
+                                    for seed in bctx.seeds])
+                guided = np.zeros(n, dtype=bool)
+            else:
+                actions, guided = explorer.choose(obs)
             actions[~alive] = idle_action
             result = envs.step(actions, active=alive)
             buffer.add(obs, actions, result.rewards, result.next_obs, result.terminated)

@@ -33,6 +33,7 @@ from baselines.common.device import GraphedStep, make_adam
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns, evaluate
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
 from baselines.registry import register
+from baselines.common.random_start import random_start_action
 from envs import make_env
 
 
@@ -48,6 +49,9 @@ class SACConfig:
     tau: float = 0.005  # target smoothing coefficient for V'
     reward_scale: float = 5.0  # Hopper, Walker2d, HalfCheetah and Ant all use 5 in the SAC paper
     learning_starts: int = 1000  # transitions collected by the initial policy before updates
+    # uniform-random actions before the policy acts (the SAC authors' code: 1,000 or
+    # 10,000); 0, the default, is kept out of a run's address (replicate/runner.py)
+    random_start_steps: int = 0
     gradient_steps: int = 1  # per env step
     torch_threads: int = 1  # one run per core is how the harness schedules runs
 
@@ -288,8 +292,12 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         explorer.episode_start()
     last_checkpoint = start - 1
 
+    low, high = env.action_space.low, env.action_space.high
     for step in range(start, ctx.total_steps + 1):
-        action, guided = explorer.choose(obs)
+        if step <= cfg.random_start_steps:
+            action, guided = random_start_action(ctx.seed, step, low, high), False
+        else:
+            action, guided = explorer.choose(obs)
         next_obs, reward, terminated, truncated, _ = env.step(action)
         buffer.add(obs, action, reward, next_obs, terminated)
         obs = next_obs

@@ -48,6 +48,9 @@ class TwinQSACConfig:
     initial_alpha: float = 1.0
     target_entropy_per_action_dim: float = -1.0  # target entropy = this * |A|
     learning_starts: int = 1000
+    # uniform-random actions before the policy acts (the SAC authors' code: 1,000 or
+    # 10,000); 0, the default, is kept out of a run's address (replicate/runner.py)
+    random_start_steps: int = 0
     gradient_steps: int = 1
     torch_threads: int = 1
 

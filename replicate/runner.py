@@ -91,6 +91,11 @@ class PreparedRun:
         return Path(store) / self.run_id
 
 
+# Settings added after runs were committed: at these values they are left out of the
+# resolved spec, so every run trained before a setting existed keeps its address.
+ADDRESS_NEUTRAL_DEFAULTS: dict[str, Any] = {"random_start_steps": 0}
+
+
 def prepare(spec: RunSpec) -> PreparedRun:
     """Validate ``spec``, load its demonstrations, resolve defaults and compute its address."""
     spec.validate()
@@ -107,11 +112,13 @@ def prepare(spec: RunSpec) -> PreparedRun:
         demos = load_demos(path, spec.env_id)
         demo_info = {"sha256": demos.sha256, "n_pairs": len(demos.observations),
                      "expert_return_mean": demos.mean_return, "path": portable_path(path)}
+    hyperparameters = {k: v for k, v in dataclasses.asdict(config).items()
+                       if ADDRESS_NEUTRAL_DEFAULTS.get(k, object()) != v}
     resolved = {
         "algo": spec.algo, "env_id": spec.env_id, "seed": spec.seed,
         "total_steps": spec.total_steps, "eval_interval": spec.eval_interval,
         "eval_episodes": spec.eval_episodes,
-        "hyperparameters": dataclasses.asdict(config),
+        "hyperparameters": hyperparameters,
         "demos": None if demo_info is None else {k: demo_info[k] for k in ("sha256", "n_pairs")},
     }
     digest = spec_hash(resolved)
