@@ -166,3 +166,16 @@ def test_no_committed_report_links_to_nowhere():
             if not (page.parent / target).resolve().is_file():
                 dead.append(f"{page.relative_to(ROOT)} -> {href}")
     assert not dead, dead
+
+
+def test_every_open_check_says_what_would_decide_it():
+    open_checks = 0
+    for report in _committed():
+        summary = json.loads((report / "summary.json").read_text())
+        claims = summary.get("claims") or ([summary["claim"]] if summary.get("claim") else [])
+        rows = [p for c in claims for p in c["parts"]] + summary.get("verdicts", [])
+        for row in rows:
+            if row["verdict"] in ("inconclusive", "not testable at this budget"):
+                open_checks += 1
+                assert row.get("decide"), (report.name, row.get("what") or row.get("other"))
+    assert open_checks
