@@ -108,6 +108,7 @@ def test_an_algorithm_has_one_colour_in_every_figure(drawn):
                   "efficiency": {a: (rlfd.CURVE_FRACTIONS,) * 3
                                  for a in ("ibrl", "sac", "drl-eg", "rlpd")}})
     seen = 0
+    algo_rgbs = {mcolors.to_rgb(c) for c in ALGO_COLORS.values()}
     for fig in drawn:
         for label, color in legend_colors(fig).items():
             if label in ALGO_COLORS:
@@ -116,7 +117,7 @@ def test_an_algorithm_has_one_colour_in_every_figure(drawn):
         for ax in fig.axes:  # the curves themselves: each in an algorithm's colour or grey
             for line in ax.get_lines():
                 rgb = mcolors.to_rgb(line.get_color())
-                assert rgb in {mcolors.to_rgb(c) for c in ALGO_COLORS.values()} or len(set(rgb)) == 1
+                assert rgb in algo_rgbs or len(set(rgb)) == 1  # grey: references, styles
     assert seen == 3 + 4 + 2 + 2 + 4
     assert algo_color("some-new-algo") == algo_color("some-new-algo")
     assert len(set(ALGO_COLORS.values())) == len(ALGO_COLORS)

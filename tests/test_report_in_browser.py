@@ -37,9 +37,10 @@ def chromium_driver() -> webdriver.Chrome:
         pytest.skip(reason)
     options = webdriver.ChromeOptions()
     options.binary_location = browser
-    for flag in ("--headless=new", f"--window-size={WINDOW_WIDTH},1000", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync"):
+    for flag in ("--headless=new", f"--window-size={WINDOW_WIDTH},1000", "--no-sandbox",
+                 "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync"):
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(executable_path=driver), options=options)
