@@ -165,9 +165,15 @@ def seed_note(counts: dict[str, int]) -> str:
                                           for n, algos in sorted(others.items()))
 
 
+# Published SAC on the curves: the same algorithm as ours open, modern twin-Q SAC filled.
+PUBLISHED_MARKERS = {"V-network SAC": ("o", "white"), "twin-Q SAC": ("D", "0.1")}
+PUBLISHED_LABELS = {"V-network SAC": "published V-network SAC (Spinning Up, Coach; -v2)",
+                    "twin-Q SAC": "published twin-Q SAC (Tianshou, -v3)"}
+
+
 def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float],
                         title: str,
-                        reference_points: dict[str, list[tuple[int, float, float]]] | None = None,
+                        reference_points: dict[str, list[tuple[int, float, float, str]]] | None = None,
                         env_order: list[str] | None = None,
                         confidence: float = CONFIDENCE) -> bytes:
     """Fig. 3: one panel per env, ``FIG3_COLUMNS`` a row; per algorithm each seed's curve
@@ -175,14 +181,16 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
     band; one legend for all panels.
 
     ``reference_lines`` maps env id to the demonstrations' mean return, drawn dashed;
-    ``reference_points`` to published SAC's (steps, mean, sd), drawn as points with bars;
+    ``reference_points`` to published SAC's (steps, mean, sd, family), drawn as points with
+    bars, one marker per family (``PUBLISHED_MARKERS``: V-network SAC, twin-Q SAC);
     ``env_order`` orders the panels (the paper's order), envs it lacks going last.
     """
     set_theme()
     envs = panel_order([b.env_id for b in bands], env_order or [])
     algos = algo_order([b.algo for b in bands])
     fig, axes, slot = panel_grid(len(envs), FIG3_COLUMNS, 4.0, legend_height=1.0)
-    published_any = demos_any = seeds_any = False
+    published_families: set[str] = set()
+    demos_any = seeds_any = False
     for ax, env_id in zip(axes, envs, strict=True):
         here = sorted((b for b in bands if b.env_id == env_id), key=lambda b: algos.index(b.algo))
         for b in here:
@@ -199,12 +207,14 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
             demos_any = True
             ax.axhline(reference_lines[env_id], color=REFERENCE_COLOR, linestyle="--",
                        linewidth=1.2, zorder=4)
-        published = (reference_points or {}).get(env_id)
-        if published:
-            published_any = True
-            xs, ys, sds = zip(*published)
-            ax.errorbar(xs, ys, yerr=sds, fmt="D", color="0.1", markersize=5, capsize=3,
-                        linewidth=1.0, zorder=5)
+        for family, (marker, face) in PUBLISHED_MARKERS.items():
+            published = [p for p in (reference_points or {}).get(env_id, []) if p[3] == family]
+            if published:
+                published_families.add(family)
+                xs, ys, sds = (list(v) for v in zip(*(p[:3] for p in published)))
+                sds = [0.0 if sd != sd else sd for sd in sds]  # a source without a spread
+                ax.errorbar(xs, ys, yerr=sds, fmt=marker, color="0.1", markerfacecolor=face,
+                            markersize=6, capsize=3, linewidth=1.0, zorder=5)
         ax.set_title(f"{env_id}\n{seed_note({b.algo: b.n_runs for b in here})}",
                      fontsize=12, linespacing=1.4)
         format_steps_axis(ax)
@@ -222,9 +232,11 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
     if demos_any:
         handles.append(Line2D([], [], color=REFERENCE_COLOR, linestyle="--", linewidth=1.2))
         labels.append("demonstrations' mean return")
-    if published_any:
-        handles.append(Line2D([], [], color="0.1", marker="D", linestyle="none", markersize=5))
-        labels.append("published SAC (Tianshou, -v3)")
+    for family, (marker, face) in PUBLISHED_MARKERS.items():
+        if family in published_families:
+            handles.append(Line2D([], [], color="0.1", marker=marker, markerfacecolor=face,
+                                  linestyle="none", markersize=6))
+            labels.append(PUBLISHED_LABELS[family])
     shared_legend(fig, handles, labels, slot, columns=None if slot is not None else 4)
     fig.suptitle(title)
     return png_bytes(fig)

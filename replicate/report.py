@@ -419,8 +419,8 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     efficiency = efficiency_rows(groups, demo_lines)
     published = published_rows(groups, profile.steps)
     title = f"Fig. 3 replication, profile '{profile.name}'"
-    points = {env_id: [(p.steps, p.mean, p.std) for p in published_points(env_id, steps)
-                       if p.source == "tianshou"]
+    points = {env_id: [(p.steps, p.mean, p.std, p.family) for p in published_points(env_id, steps)
+                       if p.source in ("tianshou", "spinningup", "coach")]
               for env_id, steps in profile.steps.items() if env_id in {b.env_id for b in bands}}
     figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title, points,
                                                    list(profile.steps))).decode()

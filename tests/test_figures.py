@@ -200,3 +200,28 @@ def test_the_ablation_t2_ticks_do_not_overlap(drawn):
             assert left.x1 < right.x0, "neighbouring T2 tick labels overlap"
     assert_legend_outside_the_curves(fig)
     assert legend_colors(fig)["SAC (mean over seeds)"] == ALGO_COLORS["sac"]
+
+
+def test_published_sac_is_drawn_in_two_groups():
+    """The same algorithm as ours (V-network SAC) and modern twin-Q SAC get markers and
+    legend entries of their own."""
+    import matplotlib
+
+    from replicate import figures
+
+    labels = []
+    real = figures.shared_legend
+
+    def record(fig, handles, names, *args, **kwargs):
+        labels.extend(names)
+        return real(fig, handles, names, *args, **kwargs)
+
+    points = {"A-v0": [(100, 10.0, float("nan"), "V-network SAC"),
+                       (100, 20.0, 2.0, "twin-Q SAC")]}
+    figures.shared_legend = record
+    try:
+        learning_curves_png(bands(["sac"], ["A-v0"]), {}, "Fig. 3", points)
+    finally:
+        figures.shared_legend = real
+    assert [label for label in labels if label.startswith("published")] == [
+        figures.PUBLISHED_LABELS["V-network SAC"], figures.PUBLISHED_LABELS["twin-Q SAC"]]
