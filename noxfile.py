@@ -27,36 +27,49 @@ def tests(session: nox.Session) -> None:
     session.run("pytest", "-q", *session.posargs, env={"MUJOCO_GL": "disable"})
 
 
+@nox.session(python=PYTHON)
+def lint(session: nox.Session) -> None:
+    """ruff: lint and format check, as configured in pyproject.toml (CI runs it)."""
+    session.install("ruff==0.17.6")  # pinned: another version may format differently
+    session.run("ruff", "check", ".")
+    session.run("ruff", "format", "--check", ".")
+
+
 @nox.session(name="replicate-fig3", python=PYTHON)
 def replicate_fig3(session: nox.Session) -> None:
     """Train the Fig. 3 grid (only what the run store lacks) and write reports/fig3/index.html."""
     _install(session)
-    session.run("python", "-m", "replicate", "fig3", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run("python", "-m", "replicate", "fig3", *session.posargs, env={"MUJOCO_GL": "disable"})
 
 
 @nox.session(name="replicate-fig4", python=PYTHON)
 def replicate_fig4(session: nox.Session) -> None:
     """Paired SAC and DRL-EG runs on Ant (same seeds, same initial weights): reports/fig4."""
     _install(session)
-    session.run("python", "-m", "replicate", "fig4", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run("python", "-m", "replicate", "fig4", *session.posargs, env={"MUJOCO_GL": "disable"})
 
 
 @nox.session(name="ablate-threshold", python=PYTHON)
 def ablate_threshold(session: nox.Session) -> None:
     """Sweep DRL-EG's T2 (and sigma) with optuna; write reports/ablate-threshold/index.html."""
     _install(session)
-    session.run("python", "-m", "replicate", "ablate-threshold", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run(
+        "python",
+        "-m",
+        "replicate",
+        "ablate-threshold",
+        *session.posargs,
+        env={"MUJOCO_GL": "disable"},
+    )
 
 
 @nox.session(name="compare-rlfd", python=PYTHON)
 def compare_rlfd(session: nox.Session) -> None:
     """DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD on shared demonstrations: reports/rlfd."""
     _install(session)
-    session.run("python", "-m", "replicate", "compare-rlfd", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run(
+        "python", "-m", "replicate", "compare-rlfd", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
 
 
 @nox.session(python=PYTHON)
@@ -69,42 +82,64 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/bench.py", *session.posargs, env=env)
     # the seed-batched trainer: CPU sections (SAC; IBRL and RLPD) here
     session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", env=env)
-    session.run("python", "-c", "import torch, sys; sys.exit(0 if torch.cuda.is_available() "
-                "else 1)", success_codes=[0, 1], env=env)
+    session.run(
+        "python",
+        "-c",
+        "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)",
+        success_codes=[0, 1],
+        env=env,
+    )
     # micro-benchmarks, saved so that two commits compare (pytest-benchmark compare)
-    session.run("pytest", "-q", "-p", "no:cacheprovider", "benchmarks/test_micro.py",
-                "--benchmark-json", "reports/bench/micro.json", env=env)
+    session.run(
+        "pytest",
+        "-q",
+        "-p",
+        "no:cacheprovider",
+        "benchmarks/test_micro.py",
+        "--benchmark-json",
+        "reports/bench/micro.json",
+        env=env,
+    )
 
 
 @nox.session(name="replicate-table1", python=PYTHON)
 def replicate_table1(session: nox.Session) -> None:
     """Write reports/table1/index.html: env dims (paper beside harness) and demonstrations."""
     _install(session)
-    session.run("python", "-m", "replicate", "table1", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run(
+        "python", "-m", "replicate", "table1", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
 
 
 @nox.session(python=PYTHON)
 def report(session: nox.Session) -> None:
     """Rebuild every report from the run store alone (nothing is trained)."""
     _install(session)
-    session.run("python", "-m", "replicate", "report", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run(
+        "python", "-m", "replicate", "report", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
 
 
 @nox.session(python=PYTHON)
 def carry(session: nox.Session) -> None:
     """Pack the store's unfinished runs and seed batches into runs/carry/ to commit them."""
     _install(session)
-    session.run("python", "-m", "replicate", "carry", *session.posargs,
-                env={"MUJOCO_GL": "disable"})
+    session.run(
+        "python", "-m", "replicate", "carry", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
 
 
 # Experts of the paper's MuJoCo envs and of the dm-control tasks (the sparse cartpole uses
 # the dense one's). Kept here as data so the session reads without importing the package.
-EXPERT_ENVS = ["Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",
-               "dm_control/cartpole-swingup-v0", "dm_control/ball_in_cup-catch-v0",
-               "dm_control/walker-walk-v0"]
+EXPERT_ENVS = [
+    "Hopper-v5",
+    "Walker2d-v5",
+    "HalfCheetah-v5",
+    "Ant-v5",
+    "dm_control/cartpole-swingup-v0",
+    "dm_control/ball_in_cup-catch-v0",
+    "dm_control/walker-walk-v0",
+]
 
 
 @nox.session(python=PYTHON)
@@ -114,8 +149,15 @@ def experts(session: nox.Session) -> None:
     args = list(session.posargs)
     envs = [None] if "--env" in args else EXPERT_ENVS
     for env_id in envs:
-        session.run("python", "-m", "replicate", "expert",
-                    *(["--env", env_id] if env_id else []), *args, env={"MUJOCO_GL": "disable"})
+        session.run(
+            "python",
+            "-m",
+            "replicate",
+            "expert",
+            *(["--env", env_id] if env_id else []),
+            *args,
+            env={"MUJOCO_GL": "disable"},
+        )
 
 
 @nox.session(python=PYTHON)

@@ -32,18 +32,38 @@ import numpy as np
 import torch
 
 from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.checkpoint import (CheckpointDeviceError, due, load_checkpoint,
-                                         save_checkpoint, stop_if_past)
+from baselines.common.checkpoint import (
+    CheckpointDeviceError,
+    due,
+    load_checkpoint,
+    save_checkpoint,
+    stop_if_past,
+)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
 from baselines.common.random_start import random_start_action
-from baselines.common.stacked import (StackedMLP, StackedNormMLP, StackedPolicy, StackedReplay,
-                                      StackedSymmetricReplay, critic_ensembles, critic_pairs,
-                                      member_adam, pair_critics)
-from baselines.drl_eg import (DRLEGConfig, DRLEGTwinQConfig, Guidance, fit_gmm,
-                              fit_neural_guider, functional_discriminator, functional_guider,
-                              gmm_discriminator)
+from baselines.common.stacked import (
+    StackedMLP,
+    StackedNormMLP,
+    StackedPolicy,
+    StackedReplay,
+    StackedSymmetricReplay,
+    critic_ensembles,
+    critic_pairs,
+    member_adam,
+    pair_critics,
+)
+from baselines.drl_eg import (
+    DRLEGConfig,
+    DRLEGTwinQConfig,
+    Guidance,
+    fit_gmm,
+    fit_neural_guider,
+    functional_discriminator,
+    functional_guider,
+    gmm_discriminator,
+)
 from baselines.ibrl import IBRLConfig, ImitationPolicy, preloaded_buffer
 from baselines.registry import register_batched
 from baselines.rlpd import RLPDAgent, RLPDConfig, demo_transitions_or_fail
@@ -108,8 +128,9 @@ class StackedActor:
     def _setup_acting(self, cuda_graphs: bool) -> None:
         self._act_graph = GraphedStep(self._act_body, self.device, cuda_graphs)
 
-    def _act_body(self, obs: torch.Tensor, noise: torch.Tensor | None = None
-                  ) -> dict[str, torch.Tensor]:
+    def _act_body(
+        self, obs: torch.Tensor, noise: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         if noise is None:  # on the GPU, inside the graph
             noise = torch.randn((self.members, 1, self.act_dim), device=self.device)
         action, _ = self.policy.sample(obs[:, None, :], noise=noise)
@@ -163,8 +184,11 @@ class StackedActor:
         """One gradient step of every member on its own minibatch; per-member losses (N,)."""
         if self.device.type == "cpu":
             batch = self.buffer.sample(self.batch_size, rngs)
-            with torch.autocast("cpu", dtype=self.cpu_autocast or torch.bfloat16,
-                                enabled=self.cpu_autocast is not None):
+            with torch.autocast(
+                "cpu",
+                dtype=self.cpu_autocast or torch.bfloat16,
+                enabled=self.cpu_autocast is not None,
+            ):
                 return self._gradient_step(batch, self._cpu_noise())
         self._size.fill_(self.buffer.size)
         return self._update_graph(size=self._size)
@@ -194,17 +218,22 @@ class StackedActor:
 class StackedSACAgent(StackedActor):
     """The paper's V-network SAC (``baselines.sac.SACAgent``) for N members."""
 
-    def __init__(self, agents: list[SACAgent], config: SACConfig, device: str,
-                 cuda_graphs: bool = True):
+    def __init__(
+        self, agents: list[SACAgent], config: SACConfig, device: str, cuda_graphs: bool = True
+    ):
         self.config, self.device = config, torch.device(device)
         self.members, self.act_dim = len(agents), agents[0].policy.action_scale.shape[0]
-        self.critics = pair_critics([a.q1.net for a in agents],
-                                    [a.q2.net for a in agents]).to(self.device)
+        self.critics = pair_critics([a.q1.net for a in agents], [a.q2.net for a in agents]).to(
+            self.device
+        )
         self.v = StackedMLP.stack([a.v.net for a in agents]).to(self.device)
         self.v_target = StackedMLP.stack([a.v_target.net for a in agents]).to(self.device)
         first = agents[0].policy
-        self.policy = StackedPolicy(StackedMLP.stack([a.policy.trunk for a in agents]),
-                                    first.action_scale, first.action_bias).to(self.device)
+        self.policy = StackedPolicy(
+            StackedMLP.stack([a.policy.trunk for a in agents]),
+            first.action_scale,
+            first.action_bias,
+        ).to(self.device)
         lr = config.learning_rate
         self.q_optimizer = member_adam(self.critics.parameters(), lr, self.device)
         self.v_optimizer = member_adam(self.v.parameters(), lr, self.device)
@@ -213,8 +242,15 @@ class StackedSACAgent(StackedActor):
         self._setup_acting(cuda_graphs)
         self._setup_updates(config.batch_size, cuda_graphs)
 
-    MODULES = ("critics", "v", "v_target", "policy", "q_optimizer", "v_optimizer",
-               "policy_optimizer")
+    MODULES = (
+        "critics",
+        "v",
+        "v_target",
+        "policy",
+        "q_optimizer",
+        "v_optimizer",
+        "policy_optimizer",
+    )
 
     def _cpu_noise(self) -> torch.Tensor:
         return self._member_noise(self.batch_size).to(self.device)
@@ -226,9 +262,13 @@ class StackedSACAgent(StackedActor):
         cfg = self.config
         obs, actions = batch.observations, batch.actions
         with torch.no_grad():
-            y_q = q_target(batch.rewards, batch.terminated,
-                           self.v_target(batch.next_observations).squeeze(-1), cfg.gamma,
-                           cfg.reward_scale)
+            y_q = q_target(
+                batch.rewards,
+                batch.terminated,
+                self.v_target(batch.next_observations).squeeze(-1),
+                cfg.gamma,
+                cfg.reward_scale,
+            )
         q = critic_pairs(self.critics, obs, actions)  # (N, 2, B)
         q_losses = 0.5 * (q - y_q[:, None]).pow(2).mean(-1).sum(-1)  # per member
         self.q_optimizer.zero_grad()
@@ -238,8 +278,9 @@ class StackedSACAgent(StackedActor):
         new_actions, log_prob = self.policy.sample(obs, noise=noise)
         with frozen(self.critics):
             q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
-        v_losses = 0.5 * (self.v(obs).squeeze(-1) - v_target(q_new, log_prob).detach()
-                          ).pow(2).mean(-1)
+        v_losses = 0.5 * (self.v(obs).squeeze(-1) - v_target(q_new, log_prob).detach()).pow(2).mean(
+            -1
+        )
         policy_losses = (log_prob - q_new).mean(-1)
         self.v_optimizer.zero_grad()
         v_losses.sum().backward()
@@ -249,25 +290,39 @@ class StackedSACAgent(StackedActor):
         self.policy_optimizer.step()
 
         with torch.no_grad():
-            torch._foreach_lerp_(list(self.v_target.parameters()), list(self.v.parameters()),
-                                 cfg.tau)
-        return {"q_loss": q_losses.detach(), "v_loss": v_losses.detach(),
-                "policy_loss": policy_losses.detach(), "entropy": -log_prob.detach().mean(-1)}
+            torch._foreach_lerp_(
+                list(self.v_target.parameters()), list(self.v.parameters()), cfg.tau
+            )
+        return {
+            "q_loss": q_losses.detach(),
+            "v_loss": v_losses.detach(),
+            "policy_loss": policy_losses.detach(),
+            "entropy": -log_prob.detach().mean(-1),
+        }
 
 
 class StackedTwinQAgent(StackedActor):
     """Twin-Q, learned-temperature SAC (``baselines.sac_twin_q``) for N members."""
 
-    def __init__(self, agents: list[TwinQSACAgent], config: TwinQSACConfig, device: str,
-                 cuda_graphs: bool = True):
+    def __init__(
+        self,
+        agents: list[TwinQSACAgent],
+        config: TwinQSACConfig,
+        device: str,
+        cuda_graphs: bool = True,
+    ):
         self.config, self.device = config, torch.device(device)
         self.members, self.act_dim = len(agents), agents[0].policy.action_scale.shape[0]
         self.critics = self._stack_ensembles([a.critics for a in agents]).to(self.device)
-        self.critics_target = self._stack_ensembles([a.critics_target for a in agents]
-                                                    ).to(self.device)
+        self.critics_target = self._stack_ensembles([a.critics_target for a in agents]).to(
+            self.device
+        )
         first = agents[0].policy
-        self.policy = StackedPolicy(StackedMLP.stack([a.policy.trunk for a in agents]),
-                                    first.action_scale, first.action_bias).to(self.device)
+        self.policy = StackedPolicy(
+            StackedMLP.stack([a.policy.trunk for a in agents]),
+            first.action_scale,
+            first.action_bias,
+        ).to(self.device)
         self.log_alpha = torch.cat([a.log_alpha.detach() for a in agents]).to(self.device)
         self.log_alpha.requires_grad_(True)
         self.target_entropy = agents[0].target_entropy
@@ -279,16 +334,28 @@ class StackedTwinQAgent(StackedActor):
         self._setup_acting(cuda_graphs)
         self._setup_updates(config.batch_size, cuda_graphs)
 
-    MODULES = ("critics", "critics_target", "policy", "critic_optimizer", "policy_optimizer",
-               "alpha_optimizer")
+    MODULES = (
+        "critics",
+        "critics_target",
+        "policy",
+        "critic_optimizer",
+        "policy_optimizer",
+        "alpha_optimizer",
+    )
 
     @staticmethod
     def _stack_ensembles(ensembles: list) -> StackedMLP:
         """Each member's (2, in, out) critic pair, member-major, as one stack of 2N."""
-        return StackedMLP([torch.cat([e.weights[i].detach() for e in ensembles])
-                           for i in range(len(ensembles[0].weights))],
-                          [torch.cat([e.biases[i].detach() for e in ensembles])
-                           for i in range(len(ensembles[0].biases))])
+        return StackedMLP(
+            [
+                torch.cat([e.weights[i].detach() for e in ensembles])
+                for i in range(len(ensembles[0].weights))
+            ],
+            [
+                torch.cat([e.biases[i].detach() for e in ensembles])
+                for i in range(len(ensembles[0].biases))
+            ],
+        )
 
     def _cpu_noise(self) -> tuple[torch.Tensor, torch.Tensor]:
         # member k draws next_noise, then new_noise, from its own stream, as one run does
@@ -300,29 +367,39 @@ class StackedTwinQAgent(StackedActor):
         return next_noise.to(self.device), new_noise.to(self.device)
 
     def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
-        return (torch.randn(batch.actions.shape, device=self.device),
-                torch.randn(batch.actions.shape, device=self.device))
+        return (
+            torch.randn(batch.actions.shape, device=self.device),
+            torch.randn(batch.actions.shape, device=self.device),
+        )
 
-    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
-                         alpha: torch.Tensor, **target_inputs: torch.Tensor) -> torch.Tensor:
+    def next_state_value(
+        self,
+        next_obs: torch.Tensor,
+        next_noise: torch.Tensor,
+        alpha: torch.Tensor,
+        **target_inputs: torch.Tensor,
+    ) -> torch.Tensor:
         """Each member's soft value of s' (N, B) under its target critics (IBRL overrides)."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
         next_q = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
         return next_q - alpha * next_log_prob
 
-    def _gradient_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor],
-                       **target_inputs: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _gradient_step(
+        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor], **target_inputs: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         next_noise, new_noise = noise
         obs, actions = batch.observations, batch.actions
         alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
         with torch.no_grad():
-            next_value = self.next_state_value(batch.next_observations, next_noise, alpha,
-                                               **target_inputs)
+            next_value = self.next_state_value(
+                batch.next_observations, next_noise, alpha, **target_inputs
+            )
             y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
-        q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]
-                          ).pow(2).mean(-1).sum(-1)
+        q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]).pow(2).mean(
+            -1
+        ).sum(-1)
         self.critic_optimizer.zero_grad()
         q_losses.sum().backward()
         self.critic_optimizer.step()
@@ -335,17 +412,23 @@ class StackedTwinQAgent(StackedActor):
         policy_losses.sum().backward()
         self.policy_optimizer.step()
 
-        alpha_losses = -(self.log_alpha[:, None] * (log_prob.detach() + self.target_entropy)
-                         ).mean(-1)
+        alpha_losses = -(self.log_alpha[:, None] * (log_prob.detach() + self.target_entropy)).mean(
+            -1
+        )
         self.alpha_optimizer.zero_grad()
         alpha_losses.sum().backward()
         self.alpha_optimizer.step()
 
         with torch.no_grad():
-            torch._foreach_lerp_(list(self.critics_target.parameters()),
-                                 list(self.critics.parameters()), cfg.tau)
-        return {"q_loss": q_losses.detach(), "policy_loss": policy_losses.detach(),
-                "alpha": alpha[:, 0], "entropy": -log_prob.detach().mean(-1)}
+            torch._foreach_lerp_(
+                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
+            )
+        return {
+            "q_loss": q_losses.detach(),
+            "policy_loss": policy_losses.detach(),
+            "alpha": alpha[:, 0],
+            "entropy": -log_prob.detach().mean(-1),
+        }
 
 
 class StackedRLPDAgent(StackedTwinQAgent):
@@ -354,8 +437,14 @@ class StackedRLPDAgent(StackedTwinQAgent):
     subset of them), minibatches half demonstrations, and ``utd`` critic steps per actor
     step. On CPU member k draws its noise, subsets and replay rows in its one-run order."""
 
-    def __init__(self, agents: list[RLPDAgent], config: RLPDConfig, demos: ReplayBuffer,
-                 device: str, cuda_graphs: bool = True):
+    def __init__(
+        self,
+        agents: list[RLPDAgent],
+        config: RLPDConfig,
+        demos: ReplayBuffer,
+        device: str,
+        cuda_graphs: bool = True,
+    ):
         self.per_member = config.num_qs
         self.demos = demos  # the demonstration transitions, as the one-run path loads them
         super().__init__(agents, config, device, cuda_graphs)
@@ -367,15 +456,23 @@ class StackedRLPDAgent(StackedTwinQAgent):
         stacked = StackedTwinQAgent._stack_ensembles(ensembles)
         if not hasattr(ensembles[0], "norm_gains"):
             return stacked
-        return StackedNormMLP(list(stacked.weights), list(stacked.biases),
-                              [torch.cat([e.norm_gains[i].detach() for e in ensembles])
-                               for i in range(len(ensembles[0].norm_gains))],
-                              [torch.cat([e.norm_biases[i].detach() for e in ensembles])
-                               for i in range(len(ensembles[0].norm_biases))])
+        return StackedNormMLP(
+            list(stacked.weights),
+            list(stacked.biases),
+            [
+                torch.cat([e.norm_gains[i].detach() for e in ensembles])
+                for i in range(len(ensembles[0].norm_gains))
+            ],
+            [
+                torch.cat([e.norm_biases[i].detach() for e in ensembles])
+                for i in range(len(ensembles[0].norm_biases))
+            ],
+        )
 
     def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
-        return StackedSymmetricReplay(self.demos, members, obs_dim, self.act_dim, capacity,
-                                      self.device)
+        return StackedSymmetricReplay(
+            self.demos, members, obs_dim, self.act_dim, capacity, self.device
+        )
 
     def extra_state(self) -> dict[str, Any]:
         return {"critic_updates": self.critic_updates}
@@ -402,25 +499,32 @@ class StackedRLPDAgent(StackedTwinQAgent):
         subsets = torch.zeros((self.members, cfg.num_min_qs), dtype=torch.long)
         for k, generator in enumerate(self.generators):
             next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
-            subsets[k] = torch.randperm(cfg.num_qs, generator=generator)[:cfg.num_min_qs]
+            subsets[k] = torch.randperm(cfg.num_qs, generator=generator)[: cfg.num_min_qs]
             if actor:
                 new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
         return next_noise, subsets, new_noise
 
     def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         cfg = self.config
-        subsets = torch.rand((self.members, cfg.num_qs), device=self.device
-                             ).argsort(dim=-1)[:, :cfg.num_min_qs]
-        return (torch.randn(batch.actions.shape, device=self.device), subsets,
-                torch.randn(batch.actions.shape, device=self.device))
+        subsets = torch.rand((self.members, cfg.num_qs), device=self.device).argsort(dim=-1)[
+            :, : cfg.num_min_qs
+        ]
+        return (
+            torch.randn(batch.actions.shape, device=self.device),
+            subsets,
+            torch.randn(batch.actions.shape, device=self.device),
+        )
 
     def _symmetric_batch(self, size: torch.Tensor) -> Batch:
         half = self.batch_size // 2
         n_demos = len(self.buffer.demos)
         # a bound from a Python number: a tensor made here would copy to the device, which
         # graph capture forbids
-        demo = (torch.rand((self.members, half), device=self.device) * n_demos).long(
-        ).clamp_(max=n_demos - 1)
+        demo = (
+            (torch.rand((self.members, half), device=self.device) * n_demos)
+            .long()
+            .clamp_(max=n_demos - 1)
+        )
         uniform = torch.rand((self.members, self.batch_size - half), device=self.device)
         online = torch.minimum((uniform * size).long(), size - 1)
         return self.buffer.gather_halves(demo, online)
@@ -433,18 +537,21 @@ class StackedRLPDAgent(StackedTwinQAgent):
         batch = self._symmetric_batch(size)
         return self._rlpd_step(batch, self._device_noise(batch), actor=False)
 
-    def _rlpd_step(self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-                   actor: bool) -> dict[str, torch.Tensor]:
+    def _rlpd_step(
+        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor], actor: bool
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         next_noise, subsets, new_noise = (t.to(self.device) for t in noise)
         obs, actions, rows = batch.observations, batch.actions, batch.actions.shape[1]
         alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
         with torch.no_grad():
-            next_actions, next_log_prob = self.policy.sample(batch.next_observations,
-                                                             noise=next_noise)
-            next_q = critic_ensembles(self.critics_target, batch.next_observations,
-                                      next_actions, self.per_member)  # (N, Q, B)
+            next_actions, next_log_prob = self.policy.sample(
+                batch.next_observations, noise=next_noise
+            )
+            next_q = critic_ensembles(
+                self.critics_target, batch.next_observations, next_actions, self.per_member
+            )  # (N, Q, B)
             chosen = next_q.gather(1, subsets[:, :, None].expand(-1, -1, rows))
             next_value = chosen.min(dim=1).values
             if cfg.backup_entropy:
@@ -456,8 +563,9 @@ class StackedRLPDAgent(StackedTwinQAgent):
         q_losses.sum().backward()
         self.critic_optimizer.step()
         with torch.no_grad():
-            torch._foreach_lerp_(list(self.critics_target.parameters()),
-                                 list(self.critics.parameters()), cfg.tau)
+            torch._foreach_lerp_(
+                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
+            )
         losses = {"q_loss": q_losses.detach()}
         if not actor:
             return losses
@@ -476,8 +584,12 @@ class StackedRLPDAgent(StackedTwinQAgent):
         self.alpha_optimizer.zero_grad()
         alpha_losses.sum().backward()
         self.alpha_optimizer.step()
-        return {**losses, "policy_loss": policy_losses.detach(), "alpha": alpha[:, 0],
-                "entropy": entropy}
+        return {
+            **losses,
+            "policy_loss": policy_losses.detach(),
+            "alpha": alpha[:, 0],
+            "entropy": entropy,
+        }
 
 
 class StackedIBRLAgent(StackedTwinQAgent):
@@ -487,8 +599,14 @@ class StackedIBRLAgent(StackedTwinQAgent):
     transitions. The imitation actions come from the CPU (a KD-tree query or a BC net), so
     no step is a CUDA graph; on CPU member k draws its noise and rows in its one-run order."""
 
-    def __init__(self, agents: list[TwinQSACAgent], config: IBRLConfig,
-                 imitations: list[ImitationPolicy], demos: Any, device: str):
+    def __init__(
+        self,
+        agents: list[TwinQSACAgent],
+        config: IBRLConfig,
+        imitations: list[ImitationPolicy],
+        demos: Any,
+        device: str,
+    ):
         super().__init__(agents, config, device, cuda_graphs=False)
         self.imitations = imitations
         self.demos = demos  # a DemoSet with transitions to preload, or None
@@ -504,18 +622,23 @@ class StackedIBRLAgent(StackedTwinQAgent):
     def propose(self, obs: np.ndarray, deterministic: bool) -> tuple[np.ndarray, np.ndarray]:
         """Each member's executed action and whether its imitation policy proposed it; the
         actor's proposal is sampled unless ``deterministic``, and ties go to the actor."""
-        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)
-                                 ).to(self.device)[:, None, :]
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(self.device)[
+            :, None, :
+        ]
         if deterministic:
             rl_action = self.policy.deterministic(obs_t)
         else:
-            noise = (self._member_noise(1) if self.device.type == "cpu" else
-                     torch.randn((self.members, 1, self.act_dim), device=self.device))
+            noise = (
+                self._member_noise(1)
+                if self.device.type == "cpu"
+                else torch.randn((self.members, 1, self.act_dim), device=self.device)
+            )
             rl_action, _ = self.policy.sample(obs_t, noise=noise.to(self.device))
         il_action = torch.from_numpy(self.imitation_actions(obs[:, None, :])).to(self.device)
         pair = torch.cat([rl_action, il_action], dim=1)  # (N, 2, act_dim)
-        q = critic_pairs(self.critics_target, obs_t.expand(-1, 2, -1), pair
-                         ).min(dim=1).values  # (N, 2): min over each member's two critics
+        q = (
+            critic_pairs(self.critics_target, obs_t.expand(-1, 2, -1), pair).min(dim=1).values
+        )  # (N, 2): min over each member's two critics
         imitated = q[:, 1] > q[:, 0]
         action = torch.where(imitated[:, None], pair[:, 1], pair[:, 0])
         return action.cpu().numpy(), imitated.cpu().numpy()
@@ -539,9 +662,13 @@ class StackedIBRLAgent(StackedTwinQAgent):
             return np.repeat(np.asarray(x, dtype=np.float32)[None], members, axis=0)
 
         for i in range(n):
-            replay.add(tile(self.demos.observations[i]), tile(self.demos.actions[i]),
-                       tile(self.demos.rewards[i]), tile(self.demos.next_observations[i]),
-                       tile(float(bool(self.demos.terminated[i]))))
+            replay.add(
+                tile(self.demos.observations[i]),
+                tile(self.demos.actions[i]),
+                tile(self.demos.rewards[i]),
+                tile(self.demos.next_observations[i]),
+                tile(float(bool(self.demos.terminated[i]))),
+            )
         return replay
 
     def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
@@ -555,11 +682,17 @@ class StackedIBRLAgent(StackedTwinQAgent):
             noise = self._device_noise(batch)
         # mu(s') off the gradient step, as the one-run IBRL computes it
         next_il = self.imitation_actions(batch.next_observations.cpu().numpy())
-        return self._gradient_step(batch, noise,
-                                   next_il_actions=torch.from_numpy(next_il).to(self.device))
+        return self._gradient_step(
+            batch, noise, next_il_actions=torch.from_numpy(next_il).to(self.device)
+        )
 
-    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
-                         alpha: torch.Tensor, next_il_actions: torch.Tensor) -> torch.Tensor:
+    def next_state_value(
+        self,
+        next_obs: torch.Tensor,
+        next_noise: torch.Tensor,
+        alpha: torch.Tensor,
+        next_il_actions: torch.Tensor,
+    ) -> torch.Tensor:
         """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s') per member, a' ~ pi(.|s')."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
         q_rl = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
@@ -586,7 +719,8 @@ def load_agent_state(agent: StackedActor, state: dict[str, Any]) -> None:
             raise ValueError(
                 f"this batch checkpoint's {name} predates the CPU batches' two Adam groups "
                 "(docs/reproducibility.md), so it cannot resume; delete the batch's "
-                "checkpoint directory (.batch-* in the run store) to start it over") from None
+                "checkpoint directory (.batch-* in the run store) to start it over"
+            ) from None
     if "log_alpha" in state:
         with torch.no_grad():
             agent.log_alpha.copy_(state["log_alpha"])
@@ -618,8 +752,15 @@ class StackedGuidedExplorer(StackedExplorer):
     R_demo > R_pi and D(s_k) = 1. One KD-tree of the shared demonstrations answers all N
     states in one query; each member keeps its own T2, sigma, guider stream and gate."""
 
-    def __init__(self, agent: StackedActor, configs: list, demos: Any, low: np.ndarray,
-                 high: np.ndarray, seeds: list[int]):
+    def __init__(
+        self,
+        agent: StackedActor,
+        configs: list,
+        demos: Any,
+        low: np.ndarray,
+        high: np.ndarray,
+        seeds: list[int],
+    ):
         super().__init__(agent)
         self.configs, self.low, self.high = configs, low, high
         # one Guidance fits the tree (and the GMM or MLP of member 0); the others share the
@@ -631,12 +772,21 @@ class StackedGuidedExplorer(StackedExplorer):
         self.nets: list[Any] = []
         for k, (config, seed) in enumerate(zip(configs, seeds)):
             if config.discriminator == "gmm":
-                self.gmms.append((first.gmm, first.log_threshold) if k == 0 else
-                                 fit_gmm(first.states, config.gmm_components,
-                                         config.gmm_threshold_quantile, seed))
+                self.gmms.append(
+                    (first.gmm, first.log_threshold)
+                    if k == 0
+                    else fit_gmm(
+                        first.states, config.gmm_components, config.gmm_threshold_quantile, seed
+                    )
+                )
             if config.guider == "neural":
-                self.nets.append(first.net if k == 0 else fit_neural_guider(
-                    demos, config.neural_guider_hidden, config.neural_guider_steps, seed))
+                self.nets.append(
+                    first.net
+                    if k == 0
+                    else fit_neural_guider(
+                        demos, config.neural_guider_hidden, config.neural_guider_steps, seed
+                    )
+                )
         self.thresholds = np.array([c.guide_threshold for c in configs])
         self.demo_return = demos.mean_return
         self.policy_returns = np.zeros(len(configs))  # Algorithm 1: R_pi <- 0 before testing
@@ -650,8 +800,9 @@ class StackedGuidedExplorer(StackedExplorer):
         functional = np.array([c.discriminator == "functional" for c in self.configs]) & gate
         if functional.any():
             bound = self.thresholds[functional].max() * (1 + 1e-9) + 1e-150
-            distance, found = self.tree.query(obs[functional].astype(np.float64),
-                                              distance_upper_bound=bound)
+            distance, found = self.tree.query(
+                obs[functional].astype(np.float64), distance_upper_bound=bound
+            )
             rows = np.flatnonzero(functional)
             for row, d, i in zip(rows, distance, found):
                 guided[row] = functional_discriminator(float(d), self.thresholds[row])
@@ -669,12 +820,14 @@ class StackedGuidedExplorer(StackedExplorer):
             config = self.configs[k]
             if config.guider == "functional":
                 i = index[k] if index[k] >= 0 else self.tree.query(obs[k].astype(np.float64))[1]
-                actions[k] = functional_guider(self.demo_actions, i, config.guide_noise_std,
-                                               self.rngs[k], self.low, self.high)
+                actions[k] = functional_guider(
+                    self.demo_actions, i, config.guide_noise_std, self.rngs[k], self.low, self.high
+                )
             else:
                 with torch.no_grad():
-                    mean = self.nets[k](torch.as_tensor(obs[k], dtype=torch.float32)[None]
-                                        ).numpy()[0]
+                    mean = self.nets[k](torch.as_tensor(obs[k], dtype=torch.float32)[None]).numpy()[
+                        0
+                    ]
                 noisy = mean + config.guide_noise_std * self.rngs[k].standard_normal(mean.shape)
                 actions[k] = np.clip(noisy, self.low, self.high).astype(np.float32)
         return actions, guided
@@ -698,8 +851,9 @@ class StackedIBRLExplorer(StackedExplorer):
         return self.agent.propose(obs, deterministic=False)
 
 
-def evaluate_members(envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int,
-                     members: np.ndarray) -> list[list[float]]:
+def evaluate_members(
+    envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int, members: np.ndarray
+) -> list[list[float]]:
     """``episodes`` deterministic episodes for each member in ``members``, its env stepped
     only while it still needs one (as ``baselines.common.evaluation.evaluate`` does)."""
     returns: list[list[float]] = [[] for _ in range(envs.n)]
@@ -724,8 +878,9 @@ def evaluate_members(envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], ep
 DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the losses on a GPU
 
 
-def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
-                           explorer: StackedExplorer) -> None:
+def run_stacked_off_policy(
+    bctx: BatchContext, agent: StackedActor, explorer: StackedExplorer
+) -> None:
     """``run_off_policy`` for a batch: N envs, N buffers, N curves, one update per step."""
     cfg = agent.config
     torch.set_num_threads(cfg.torch_threads)
@@ -757,25 +912,45 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
         for k in np.flatnonzero(alive):
             gate = explorer.after_eval(k, float(np.mean(returns[k])))
             fraction = guided_steps[k] / steps_since_eval if steps_since_eval else float("nan")
-            point = EvalPoint(step, tuple(returns[k]), float(fraction), gate,
-                              float(train_returns[k]))
+            point = EvalPoint(
+                step, tuple(returns[k]), float(fraction), gate, float(train_returns[k])
+            )
             curves[k].append(point)
             bctx.members[k].on_eval(point)
             keep = bctx.members[k].best_policy_path
             if keep is not None and point.mean_return > best_returns[k]:
                 best_returns[k] = point.mean_return
-                save_checkpoint(keep, {"policy": agent.policy.member_policy(k).state_dict(),
-                                       "step": step, "mean_return": point.mean_return})
+                save_checkpoint(
+                    keep,
+                    {
+                        "policy": agent.policy.member_policy(k).state_dict(),
+                        "step": step,
+                        "mean_return": point.mean_return,
+                    },
+                )
 
     def save(step: int) -> None:
-        save_checkpoint(bctx.checkpoint_path, {
-            "step": step, "device": agent.device.type, "seeds": seeds,
-            "agent": agent_state(agent), "explorer": explorer.state_dict(),
-            "buffer": buffer.state_dict(), "batch_rngs": batch_rngs, "curves": curves,
-            "alive": alive.copy(), "failures": dict(failures), "obs": obs.copy(),
-            "guided_steps": guided_steps.copy(), "training_returns": training.state_dict(),
-            "steps_since_eval": steps_since_eval, "envs": envs.snapshot(),
-            "eval_envs": eval_envs.snapshot()})
+        save_checkpoint(
+            bctx.checkpoint_path,
+            {
+                "step": step,
+                "device": agent.device.type,
+                "seeds": seeds,
+                "agent": agent_state(agent),
+                "explorer": explorer.state_dict(),
+                "buffer": buffer.state_dict(),
+                "batch_rngs": batch_rngs,
+                "curves": curves,
+                "alive": alive.copy(),
+                "failures": dict(failures),
+                "obs": obs.copy(),
+                "guided_steps": guided_steps.copy(),
+                "training_returns": training.state_dict(),
+                "steps_since_eval": steps_since_eval,
+                "envs": envs.snapshot(),
+                "eval_envs": eval_envs.snapshot(),
+            },
+        )
 
     try:
         resumed = load_checkpoint(bctx.checkpoint_path)
@@ -788,10 +963,13 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
                 raise CheckpointDeviceError(
                     f"the batch checkpoint at {bctx.checkpoint_path} was made on "
                     f"{resumed['device']}; resume it with --device {resumed['device']}, or "
-                    f"delete it to start over on {agent.device.type}")
+                    f"delete it to start over on {agent.device.type}"
+                )
             if resumed["seeds"] != seeds:
-                raise ValueError(f"the checkpoint at {bctx.checkpoint_path} holds seeds "
-                                 f"{resumed['seeds']}, not {seeds}")
+                raise ValueError(
+                    f"the checkpoint at {bctx.checkpoint_path} holds seeds "
+                    f"{resumed['seeds']}, not {seeds}"
+                )
             start = resumed["step"] + 1
             load_agent_state(agent, resumed["agent"])
             explorer.load_state_dict(resumed["explorer"])
@@ -807,8 +985,10 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             replayed = envs.restore(resumed["envs"])
             for k in np.flatnonzero(alive):
                 if replayed[k] is None or not np.array_equal(replayed[k], obs[k]):
-                    raise RuntimeError(f"member {k}'s env did not come back to its "
-                                       "checkpointed state on replay (is it deterministic?)")
+                    raise RuntimeError(
+                        f"member {k}'s env did not come back to its "
+                        "checkpointed state on replay (is it deterministic?)"
+                    )
             eval_envs.restore(resumed["eval_envs"])
             bctx.on_resume(resumed["step"])
             for k in range(n):
@@ -823,8 +1003,9 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
         _, _, low, high = _space(env_id)
         for step in range(start, total_steps + 1):
             if step <= cfg.random_start_steps:  # each member draws its one-run actions
-                actions = np.stack([random_start_action(seed, step, low, high)
-                                    for seed in bctx.seeds])
+                actions = np.stack(
+                    [random_start_action(seed, step, low, high) for seed in bctx.seeds]
+                )
                 guided = np.zeros(n, dtype=bool)
             else:
                 actions, guided = explorer.choose(obs)
@@ -839,14 +1020,20 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             if step >= cfg.learning_starts:
                 for _ in range(cfg.gradient_steps):
                     losses = agent.update(batch_rngs)
-                look = (agent.device.type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0
-                        or step == total_steps)
+                look = (
+                    agent.device.type == "cpu"
+                    or step % DIVERGENCE_CHECK_INTERVAL == 0
+                    or step == total_steps
+                )
                 if look:
                     q_loss = losses["q_loss"].cpu().numpy()
                     for k in np.flatnonzero(alive & ~np.isfinite(q_loss)):
-                        fail(k, f"diverged at step {step}: losses "
-                                f"{ {name: float(v[k]) for name, v in losses.items()} }",
-                             total_steps - step + 1)
+                        fail(
+                            k,
+                            f"diverged at step {step}: losses "
+                            f"{ {name: float(v[k]) for name, v in losses.items()} }",
+                            total_steps - step + 1,
+                        )
 
             if step % eval_interval == 0 or step == total_steps:
                 evaluate_and_record(step)
@@ -855,8 +1042,11 @@ def run_stacked_off_policy(bctx: BatchContext, agent: StackedActor,
             bctx.on_steps(int(alive.sum()))
             if not alive.any():
                 break
-            if bctx.checkpoint_path is not None and step < total_steps \
-                    and due(step, last_checkpoint, bctx.checkpoint_interval, bctx.deadline):
+            if (
+                bctx.checkpoint_path is not None
+                and step < total_steps
+                and due(step, last_checkpoint, bctx.checkpoint_interval, bctx.deadline)
+            ):
                 save(step)
                 last_checkpoint = step
                 stop_if_past(bctx.deadline, step)
@@ -869,8 +1059,10 @@ def _one_run_agents(bctx: BatchContext, configs: list, build: Callable) -> list:
     """The one-run agent of each member's seed, on the CPU: their weights and noise
     generators become the batch's."""
     obs_dim, act_dim, low, high = _space(bctx.shared("env_id"))
-    return [build(obs_dim, act_dim, low, high, config, seed=seed, device="cpu",
-                  cuda_graphs=False) for config, seed in zip(configs, bctx.seeds)]
+    return [
+        build(obs_dim, act_dim, low, high, config, seed=seed, device="cpu", cuda_graphs=False)
+        for config, seed in zip(configs, bctx.seeds)
+    ]
 
 
 def stacked_agent(bctx: BatchContext, configs: list, twin_q: bool) -> StackedActor:
@@ -883,8 +1075,9 @@ def stacked_agent(bctx: BatchContext, configs: list, twin_q: bool) -> StackedAct
     return StackedSACAgent(agents, configs[0], bctx.device, bctx.cuda_graphs)
 
 
-def stacked_explorer(bctx: BatchContext, agent: StackedActor, configs: list,
-                     guided: bool) -> StackedExplorer:
+def stacked_explorer(
+    bctx: BatchContext, agent: StackedActor, configs: list, guided: bool
+) -> StackedExplorer:
     """SAC's explorer for the batch, or DRL-EG's over the members' shared demonstrations."""
     if not guided:
         return StackedExplorer(agent)
@@ -949,12 +1142,20 @@ def train_ibrl(bctx: BatchContext, configs: list[IBRLConfig]) -> None:
     agents = _one_run_agents(bctx, configs, TwinQSACAgent)  # IBRLAgent's weights and streams
     if bctx.device != "cpu":  # after the agents, as for the other batches
         torch.cuda.manual_seed(bctx.seeds[0] + 1)
-    agent = StackedIBRLAgent(agents, config, imitations, demos if preload else None,
-                             bctx.device)
+    agent = StackedIBRLAgent(agents, config, imitations, demos if preload else None, bctx.device)
     run_stacked_off_policy(bctx, agent, StackedIBRLExplorer(agent))
 
 
-__all__ = ["BatchContext", "StackedSACAgent", "StackedTwinQAgent", "StackedRLPDAgent",
-           "StackedIBRLAgent",
-           "StackedExplorer", "StackedGuidedExplorer", "stacked_explorer",
-           "evaluate_members", "run_stacked_off_policy", "stacked_agent"]
+__all__ = [
+    "BatchContext",
+    "StackedSACAgent",
+    "StackedTwinQAgent",
+    "StackedRLPDAgent",
+    "StackedIBRLAgent",
+    "StackedExplorer",
+    "StackedGuidedExplorer",
+    "stacked_explorer",
+    "evaluate_members",
+    "run_stacked_off_policy",
+    "stacked_agent",
+]

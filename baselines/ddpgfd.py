@@ -24,8 +24,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
-                                         save_checkpoint, stop_if_past)
+from baselines.common.checkpoint import (
+    due,
+    env_rng_state,
+    load_checkpoint,
+    restore_env_rng,
+    save_checkpoint,
+    stop_if_past,
+)
 from baselines.common.context import DemoSet, EvalPoint, TrainContext
 from baselines.common.device import flush_denormals
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -65,26 +71,35 @@ class DDPGfDConfig:
 
     def __post_init__(self) -> None:
         self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
-        if (self.n_step < 1 or self.batch_size <= 0 or self.buffer_size <= 0
-                or self.gradient_steps < 1):
-            raise ValueError("n_step, batch_size, buffer_size and gradient_steps must be "
-                             "positive")
+        if (
+            self.n_step < 1
+            or self.batch_size <= 0
+            or self.buffer_size <= 0
+            or self.gradient_steps < 1
+        ):
+            raise ValueError("n_step, batch_size, buffer_size and gradient_steps must be positive")
         if not 0.0 <= self.priority_alpha <= 1.0 or not 0.0 <= self.priority_beta0 <= 1.0:
             raise ValueError("priority_alpha and priority_beta0 must be in [0, 1]")
 
 
-def n_step_target(n_step_returns: torch.Tensor, n_step_discounts: torch.Tensor,
-                  bootstrap_values: torch.Tensor) -> torch.Tensor:
+def n_step_target(
+    n_step_returns: torch.Tensor, n_step_discounts: torch.Tensor, bootstrap_values: torch.Tensor
+) -> torch.Tensor:
     """y_n = sum_{k<m} gamma^k r_{t+k} + gamma^m Q'(s_{t+m}, mu'(s_{t+m})); the discount is 0
     where the episode terminated inside the m steps."""
     return n_step_returns + n_step_discounts * bootstrap_values
 
 
-def transition_priorities(td_errors: np.ndarray, action_gradients: np.ndarray,
-                          is_demo: np.ndarray, config: DDPGfDConfig) -> np.ndarray:
+def transition_priorities(
+    td_errors: np.ndarray, action_gradients: np.ndarray, is_demo: np.ndarray, config: DDPGfDConfig
+) -> np.ndarray:
     """p_i = delta_i^2 + lambda3 |grad_a Q|^2 + eps + eps_D [i is a demonstration]."""
-    return (td_errors ** 2 + config.lambda_actor_priority * (action_gradients ** 2).sum(-1)
-            + config.priority_eps + config.priority_eps_demo * is_demo)
+    return (
+        td_errors**2
+        + config.lambda_actor_priority * (action_gradients**2).sum(-1)
+        + config.priority_eps
+        + config.priority_eps_demo * is_demo
+    )
 
 
 def l2_penalty(module: nn.Module) -> torch.Tensor:
@@ -94,8 +109,14 @@ def l2_penalty(module: nn.Module) -> torch.Tensor:
 class DeterministicActor(nn.Module):
     """mu(s) = bias + scale * tanh(f(s)): a deterministic policy inside the action box."""
 
-    def __init__(self, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray,
-                 hidden_sizes: tuple[int, ...]):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        low: np.ndarray,
+        high: np.ndarray,
+        hidden_sizes: tuple[int, ...],
+    ):
         super().__init__()
         self.net = mlp(obs_dim, act_dim, hidden_sizes)
         low_t, high_t = (torch.as_tensor(x, dtype=torch.float32) for x in (low, high))
@@ -107,21 +128,36 @@ class DeterministicActor(nn.Module):
 
 
 class DDPGfDAgent:
-    def __init__(self, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray,
-                 config: DDPGfDConfig, seed: int):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        low: np.ndarray,
+        high: np.ndarray,
+        config: DDPGfDConfig,
+        seed: int,
+    ):
         self.config = config
         torch.manual_seed(seed)
         self.actor = DeterministicActor(obs_dim, act_dim, low, high, config.hidden_sizes)
         self.critic = QNetwork(obs_dim, act_dim, config.hidden_sizes)
         self.actor_target = copy.deepcopy(self.actor)
         self.critic_target = copy.deepcopy(self.critic)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(),
-                                                lr=config.actor_learning_rate)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(),
-                                                 lr=config.critic_learning_rate)
+        self.actor_optimizer = torch.optim.Adam(
+            self.actor.parameters(), lr=config.actor_learning_rate
+        )
+        self.critic_optimizer = torch.optim.Adam(
+            self.critic.parameters(), lr=config.critic_learning_rate
+        )
 
-    MODULES = ("actor", "critic", "actor_target", "critic_target", "actor_optimizer",
-               "critic_optimizer")
+    MODULES = (
+        "actor",
+        "critic",
+        "actor_target",
+        "critic_target",
+        "actor_optimizer",
+        "critic_optimizer",
+    )
 
     def state_dict(self) -> dict:
         return {name: getattr(self, name).state_dict() for name in self.MODULES}
@@ -138,21 +174,27 @@ class DDPGfDAgent:
         """One gradient step of critic and actor; returns losses and new priorities."""
         cfg = self.config
         with torch.no_grad():
-            next_q = self.critic_target(batch.next_observations,
-                                        self.actor_target(batch.next_observations))
+            next_q = self.critic_target(
+                batch.next_observations, self.actor_target(batch.next_observations)
+            )
             y_1 = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_q
             n_next = batch.n_step_next_observations
-            y_n = n_step_target(batch.n_step_returns, batch.n_step_discounts,
-                                self.critic_target(n_next, self.actor_target(n_next)))
+            y_n = n_step_target(
+                batch.n_step_returns,
+                batch.n_step_discounts,
+                self.critic_target(n_next, self.actor_target(n_next)),
+            )
 
         actions = batch.actions.clone().requires_grad_(True)
         q = self.critic(batch.observations, actions)
         # |grad_a Q(s_i, a_i)| per transition, for its priority (Vecerik et al., Sec. 4)
-        action_gradients, = torch.autograd.grad(q.sum(), actions, retain_graph=True)
+        (action_gradients,) = torch.autograd.grad(q.sum(), actions, retain_graph=True)
         td_1 = y_1 - q
-        critic_loss = (batch.weights * td_1.pow(2)).mean() \
-            + cfg.lambda_n_step * (batch.weights * (y_n - q).pow(2)).mean() \
+        critic_loss = (
+            (batch.weights * td_1.pow(2)).mean()
+            + cfg.lambda_n_step * (batch.weights * (y_n - q).pow(2)).mean()
             + cfg.l2_coef * l2_penalty(self.critic)
+        )
         self.critic_optimizer.zero_grad()
         critic_loss.backward()
         self.critic_optimizer.step()
@@ -160,8 +202,9 @@ class DDPGfDAgent:
         for p in self.critic.parameters():  # the actor step needs dQ/da only
             p.requires_grad_(False)
         # importance weights correct the critic's TD regression only, as in Schaul et al.
-        actor_loss = -self.critic(batch.observations, self.actor(batch.observations)).mean() \
-            + cfg.l2_coef * l2_penalty(self.actor)
+        actor_loss = -self.critic(
+            batch.observations, self.actor(batch.observations)
+        ).mean() + cfg.l2_coef * l2_penalty(self.actor)
         for p in self.critic.parameters():
             p.requires_grad_(True)
         self.actor_optimizer.zero_grad()
@@ -170,22 +213,32 @@ class DDPGfDAgent:
 
         soft_update(self.critic_target, self.critic, cfg.tau)
         soft_update(self.actor_target, self.actor, cfg.tau)
-        priorities = transition_priorities(td_1.detach().numpy(), action_gradients.numpy(),
-                                           batch.is_demo, cfg)
+        priorities = transition_priorities(
+            td_1.detach().numpy(), action_gradients.numpy(), batch.is_demo, cfg
+        )
         return {"critic_loss": critic_loss.item(), "actor_loss": actor_loss.item()}, priorities
 
 
 def demo_transitions(demos: DemoSet) -> dict[str, np.ndarray]:
     """The demonstrations as transitions; DDPGfD needs rewards and next states, not just (s, a)."""
-    missing = [name for name in ("rewards", "next_observations", "terminated", "truncated")
-               if getattr(demos, name, None) is None]
+    missing = [
+        name
+        for name in ("rewards", "next_observations", "terminated", "truncated")
+        if getattr(demos, name, None) is None
+    ]
     if missing:
-        raise ValueError(f"DDPGfD needs demonstration transitions but the file lacks {missing}; "
-                         "regenerate it with `python -m replicate demos`")
-    return {"observations": demos.observations, "actions": demos.actions,
-            "rewards": demos.rewards, "next_observations": demos.next_observations,
-            "terminated": demos.terminated,
-            "episode_end": np.logical_or(demos.terminated, demos.truncated)}
+        raise ValueError(
+            f"DDPGfD needs demonstration transitions but the file lacks {missing}; "
+            "regenerate it with `python -m replicate demos`"
+        )
+    return {
+        "observations": demos.observations,
+        "actions": demos.actions,
+        "rewards": demos.rewards,
+        "next_observations": demos.next_observations,
+        "terminated": demos.terminated,
+        "episode_end": np.logical_or(demos.terminated, demos.truncated),
+    }
 
 
 @register("ddpgfd", DDPGfDConfig, needs_demos=True)
@@ -207,9 +260,9 @@ def _train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
 
     demos = demo_transitions(ctx.demos)
     n_demo = len(demos["observations"])
-    buffer = PrioritizedReplayBuffer(obs_dim, act_dim,
-                                     n_demo + min(config.buffer_size, ctx.total_steps),
-                                     config.priority_alpha)
+    buffer = PrioritizedReplayBuffer(
+        obs_dim, act_dim, n_demo + min(config.buffer_size, ctx.total_steps), config.priority_alpha
+    )
     buffer.add_demonstrations(**demos)
     rng = np.random.default_rng(ctx.seed)
     noise_std = config.exploration_noise * (high - low) / 2.0
@@ -260,12 +313,23 @@ def _train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
             evaluate_and_record(step)
         ctx.on_steps(1)
         if terminated or truncated:
-            if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline):
-                save_checkpoint(ctx.checkpoint_path, {
-                    "step": step, "agent": agent.state_dict(), "buffer": buffer.state_dict(),
-                    "rng": rng, "curve": curve, "env_rng": env_rng_state(env),
-                    "eval_env_rng": env_rng_state(eval_env)})
+            if (
+                ctx.checkpoint_path is not None
+                and step < ctx.total_steps
+                and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline)
+            ):
+                save_checkpoint(
+                    ctx.checkpoint_path,
+                    {
+                        "step": step,
+                        "agent": agent.state_dict(),
+                        "buffer": buffer.state_dict(),
+                        "rng": rng,
+                        "curve": curve,
+                        "env_rng": env_rng_state(env),
+                        "eval_env_rng": env_rng_state(eval_env),
+                    },
+                )
                 last_checkpoint = step
                 stop_if_past(ctx.deadline, step)
             obs, _ = env.reset()

@@ -57,8 +57,9 @@ class GuidanceConfig:
         if self.guide_threshold < 0 or self.guide_noise_std < 0:
             raise ValueError("guide_threshold (T2) and guide_noise_std (sigma) must be >= 0")
         if self.discriminator not in DISCRIMINATORS or self.guider not in GUIDERS:
-            raise ValueError(f"discriminator must be one of {DISCRIMINATORS} and guider one "
-                             f"of {GUIDERS}")
+            raise ValueError(
+                f"discriminator must be one of {DISCRIMINATORS} and guider one of {GUIDERS}"
+            )
         if not 0.0 <= self.gmm_threshold_quantile <= 1.0 or self.gmm_components < 1:
             raise ValueError("gmm_threshold_quantile must be in [0, 1] and gmm_components >= 1")
 
@@ -118,18 +119,29 @@ def functional_discriminator(distance: float, threshold: float) -> bool:
     return threshold > 0 and distance <= threshold
 
 
-def functional_guider(demo_actions: np.ndarray, index: int, noise_std: float,
-                      rng: np.random.Generator, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+def functional_guider(
+    demo_actions: np.ndarray,
+    index: int,
+    noise_std: float,
+    rng: np.random.Generator,
+    low: np.ndarray,
+    high: np.ndarray,
+) -> np.ndarray:
     """G(s) of eq. 12: the nearest demonstration's action plus N(0, sigma^2), clipped to the box."""
     action = demo_actions[index] + noise_std * rng.standard_normal(demo_actions.shape[1])
     return np.clip(action, low, high).astype(np.float32)
 
 
-def fit_gmm(demo_states: np.ndarray, components: int, threshold_quantile: float, seed: int
-            ) -> tuple[GaussianMixture, float]:
+def fit_gmm(
+    demo_states: np.ndarray, components: int, threshold_quantile: float, seed: int
+) -> tuple[GaussianMixture, float]:
     """EM fit of the state density (eq. 10) and the log-density threshold log T."""
-    gmm = GaussianMixture(n_components=min(components, len(demo_states)),
-                          covariance_type="full", reg_covar=1e-4, random_state=seed)
+    gmm = GaussianMixture(
+        n_components=min(components, len(demo_states)),
+        covariance_type="full",
+        reg_covar=1e-4,
+        random_state=seed,
+    )
     gmm.fit(demo_states)
     log_threshold = float(np.quantile(gmm.score_samples(demo_states), threshold_quantile))
     return gmm, log_threshold
@@ -140,8 +152,9 @@ def gmm_discriminator(gmm: GaussianMixture, state: np.ndarray, log_threshold: fl
     return float(gmm.score_samples(state[None, :])[0]) > log_threshold
 
 
-def fit_neural_guider(demos: DemoSet, hidden: tuple[int, ...], steps: int, seed: int
-                      ) -> torch.nn.Module:
+def fit_neural_guider(
+    demos: DemoSet, hidden: tuple[int, ...], steps: int, seed: int
+) -> torch.nn.Module:
     """An MLP s -> a regressed on the demonstration pairs (mean squared error)."""
     generator = torch.Generator().manual_seed(seed)
     states = torch.as_tensor(np.asarray(demos.observations, dtype=np.float32))
@@ -162,8 +175,9 @@ def fit_neural_guider(demos: DemoSet, hidden: tuple[int, ...], steps: int, seed:
 class Guidance:
     """D(s) and G(s) built from the demonstrations: ``guide(s)`` is an action or None."""
 
-    def __init__(self, config: DRLEGConfig, demos: DemoSet, low: np.ndarray,
-                 high: np.ndarray, seed: int):
+    def __init__(
+        self, config: DRLEGConfig, demos: DemoSet, low: np.ndarray, high: np.ndarray, seed: int
+    ):
         self.config, self.low, self.high = config, low, high
         self.states = np.asarray(demos.observations, dtype=np.float64)
         self.actions = np.asarray(demos.actions, dtype=np.float64)
@@ -172,11 +186,13 @@ class Guidance:
         # (1M pairs) costs about what 1000 do
         self.tree = cKDTree(self.states)
         if config.discriminator == "gmm":
-            self.gmm, self.log_threshold = fit_gmm(self.states, config.gmm_components,
-                                                   config.gmm_threshold_quantile, seed)
+            self.gmm, self.log_threshold = fit_gmm(
+                self.states, config.gmm_components, config.gmm_threshold_quantile, seed
+            )
         if config.guider == "neural":
-            self.net = fit_neural_guider(demos, config.neural_guider_hidden,
-                                         config.neural_guider_steps, seed)
+            self.net = fit_neural_guider(
+                demos, config.neural_guider_hidden, config.neural_guider_steps, seed
+            )
 
     def guide(self, state: np.ndarray) -> np.ndarray | None:
         cfg = self.config
@@ -195,8 +211,9 @@ class Guidance:
         if cfg.guider == "functional" and index < 0:
             _, index = self.tree.query(state)
         if cfg.guider == "functional":
-            return functional_guider(self.actions, index, cfg.guide_noise_std, self.rng,
-                                     self.low, self.high)
+            return functional_guider(
+                self.actions, index, cfg.guide_noise_std, self.rng, self.low, self.high
+            )
         with torch.no_grad():
             mean = self.net(torch.as_tensor(state, dtype=torch.float32)[None]).numpy()[0]
         noisy = mean + cfg.guide_noise_std * self.rng.standard_normal(mean.shape)
@@ -230,8 +247,9 @@ class GuidedExplorer(PolicyExplorer):
         self.guidance.rng = state["guider_rng"]
 
 
-def _train_guided(ctx: TrainContext, config: DRLEGConfig | DRLEGTwinQConfig,
-                  agent: SACAgent | TwinQSACAgent) -> ReplayBuffer:
+def _train_guided(
+    ctx: TrainContext, config: DRLEGConfig | DRLEGTwinQConfig, agent: SACAgent | TwinQSACAgent
+) -> ReplayBuffer:
     if ctx.demos is None:
         raise ValueError("DRL-EG needs demonstrations")
     low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()

@@ -56,8 +56,9 @@ class ImitationConfig:
     def validate_imitation(self) -> None:
         self.bc_hidden = tuple(int(w) for w in self.bc_hidden)
         if self.imitation not in IMITATION_POLICIES:
-            raise ValueError(f"imitation must be one of {IMITATION_POLICIES}, "
-                             f"got '{self.imitation}'")
+            raise ValueError(
+                f"imitation must be one of {IMITATION_POLICIES}, got '{self.imitation}'"
+            )
         if self.bc_steps < 0:
             raise ValueError("bc_steps must be >= 0")
 
@@ -79,8 +80,9 @@ class ImitationPolicy:
     guider with sigma = 0), or a BC regression of the pairs; clipped to the action box.
     Deterministic, so it is refitted identically on resume and needs no checkpoint."""
 
-    def __init__(self, config: ImitationConfig, demos: DemoSet, low: np.ndarray,
-                 high: np.ndarray, seed: int):
+    def __init__(
+        self, config: ImitationConfig, demos: DemoSet, low: np.ndarray, high: np.ndarray, seed: int
+    ):
         self.kind, self.low, self.high = config.imitation, low, high
         self.actions = np.asarray(demos.actions, dtype=np.float64)
         self.rng = np.random.default_rng(0)  # functional_guider's; sigma = 0 leaves it unused
@@ -103,11 +105,21 @@ class ImitationPolicy:
 class IBRLAgent(TwinQSACAgent):
     """Twin-Q SAC whose acting and critic target choose between the actor and ``imitation``."""
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: IBRLConfig, seed: int,
-                 imitation: ImitationPolicy, device: str = "cpu", cuda_graphs: bool = True):
-        super().__init__(obs_dim, act_dim, action_low, action_high, config, seed, device,
-                         cuda_graphs)
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: IBRLConfig,
+        seed: int,
+        imitation: ImitationPolicy,
+        device: str = "cpu",
+        cuda_graphs: bool = True,
+    ):
+        super().__init__(
+            obs_dim, act_dim, action_low, action_high, config, seed, device, cuda_graphs
+        )
         self.imitation = imitation
 
     @torch.no_grad()
@@ -136,8 +148,13 @@ class IBRLAgent(TwinQSACAgent):
         next_obs = batch.next_observations.cpu().numpy()
         return {"next_il_actions": torch.as_tensor(self.imitation(next_obs))}
 
-    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
-                         alpha: torch.Tensor, next_il_actions: torch.Tensor) -> torch.Tensor:
+    def next_state_value(
+        self,
+        next_obs: torch.Tensor,
+        next_noise: torch.Tensor,
+        alpha: torch.Tensor,
+        next_il_actions: torch.Tensor,
+    ) -> torch.Tensor:
         """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s'), with a' ~ pi(.|s')."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
         q_rl = self.target_q(next_obs, next_actions)
@@ -152,15 +169,21 @@ class IBRLExplorer(PolicyExplorer):
         return self.agent.propose(obs)
 
 
-def preloaded_buffer(demos: DemoSet, obs_dim: int, act_dim: int, online_capacity: int
-                     ) -> ReplayBuffer:
+def preloaded_buffer(
+    demos: DemoSet, obs_dim: int, act_dim: int, online_capacity: int
+) -> ReplayBuffer:
     """A replay buffer holding the demonstration transitions first, with room for
     ``online_capacity`` more; the ring overwrites the demonstrations first once it is full."""
     n = len(demos.observations)
     buffer = ReplayBuffer(obs_dim, act_dim, n + online_capacity)
     for i in range(n):
-        buffer.add(demos.observations[i], demos.actions[i], demos.rewards[i],
-                   demos.next_observations[i], bool(demos.terminated[i]))
+        buffer.add(
+            demos.observations[i],
+            demos.actions[i],
+            demos.rewards[i],
+            demos.next_observations[i],
+            bool(demos.terminated[i]),
+        )
     return buffer
 
 
@@ -174,10 +197,20 @@ def train(ctx: TrainContext, config: IBRLConfig) -> ReplayBuffer:
     probe.close()
     act_dim = space.shape[0]
     imitation = ImitationPolicy(config, ctx.demos, space.low, space.high, ctx.seed)
-    agent = IBRLAgent(obs_dim, act_dim, space.low, space.high, config, ctx.seed, imitation,
-                      device=ctx.device, cuda_graphs=ctx.cuda_graphs)
+    agent = IBRLAgent(
+        obs_dim,
+        act_dim,
+        space.low,
+        space.high,
+        config,
+        ctx.seed,
+        imitation,
+        device=ctx.device,
+        cuda_graphs=ctx.cuda_graphs,
+    )
     buffer = None
     if config.preload_demos and getattr(ctx.demos, "rewards", None) is not None:
-        buffer = preloaded_buffer(ctx.demos, obs_dim, act_dim,
-                                  min(config.buffer_size, ctx.total_steps))
+        buffer = preloaded_buffer(
+            ctx.demos, obs_dim, act_dim, min(config.buffer_size, ctx.total_steps)
+        )
     return run_off_policy(ctx, agent, IBRLExplorer(agent), buffer)

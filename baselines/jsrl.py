@@ -74,10 +74,16 @@ class JSRLConfig(TwinQSACConfig, ImitationConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         self.validate_imitation()
-        if self.curriculum_stages < 1 or self.tolerance < 0 or self.guide_horizon < 0 \
-                or self.horizon_episodes < 1:
-            raise ValueError("curriculum_stages and horizon_episodes must be >= 1, "
-                             "tolerance and guide_horizon >= 0")
+        if (
+            self.curriculum_stages < 1
+            or self.tolerance < 0
+            or self.guide_horizon < 0
+            or self.horizon_episodes < 1
+        ):
+            raise ValueError(
+                "curriculum_stages and horizon_episodes must be >= 1, "
+                "tolerance and guide_horizon >= 0"
+            )
         if self.curriculum_eval not in CURRICULUM_EVALS:
             raise ValueError(f"curriculum_eval must be one of {CURRICULUM_EVALS}")
 
@@ -93,9 +99,13 @@ def advances(mean_return: float, best: float | None, tolerance: float) -> bool:
     return best is not None and mean_return >= best - tolerance * abs(best)
 
 
-def jump_start_returns(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray],
-                       learner: Callable[[np.ndarray], np.ndarray], h: int,
-                       episodes: int) -> list[float]:
+def jump_start_returns(
+    env: gym.Env,
+    guide: Callable[[np.ndarray], np.ndarray],
+    learner: Callable[[np.ndarray], np.ndarray],
+    h: int,
+    episodes: int,
+) -> list[float]:
     """Returns of episodes where ``guide`` acts for the first h steps and ``learner`` after."""
     returns = []
     for _ in range(episodes):
@@ -104,8 +114,7 @@ def jump_start_returns(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray],
     return returns
 
 
-def measure_horizon(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray],
-                    episodes: int) -> int:
+def measure_horizon(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray], episodes: int) -> int:
     """The median length, in steps, of ``episodes`` episodes of ``guide`` alone."""
     lengths = []
     for _ in range(episodes):
@@ -123,8 +132,15 @@ def measure_horizon(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray],
 class JumpStartExplorer(PolicyExplorer):
     """Hands each episode from the guide to the learner at step h, and moves h by the rule."""
 
-    def __init__(self, agent: TwinQSACAgent, guide: ImitationPolicy, config: JSRLConfig,
-                 curriculum_env: gym.Env, horizon: int, eval_episodes: int):
+    def __init__(
+        self,
+        agent: TwinQSACAgent,
+        guide: ImitationPolicy,
+        config: JSRLConfig,
+        curriculum_env: gym.Env,
+        horizon: int,
+        eval_episodes: int,
+    ):
         super().__init__(agent)
         self.guide, self.config, self.env = guide, config, curriculum_env
         self.horizon, self.eval_episodes = horizon, eval_episodes
@@ -151,16 +167,26 @@ class JumpStartExplorer(PolicyExplorer):
             return None
         if self.config.curriculum_eval == "jump-start":
             learner = lambda obs: self.agent.act(obs, deterministic=True)  # noqa: E731
-            mean_return = float(np.mean(jump_start_returns(
-                self.env, self.act_guide, learner, self.h, self.eval_episodes)))
+            mean_return = float(
+                np.mean(
+                    jump_start_returns(
+                        self.env, self.act_guide, learner, self.h, self.eval_episodes
+                    )
+                )
+            )
         if advances(mean_return, self.best, self.config.tolerance):
             self.stage += 1
         self.best = mean_return if self.best is None else max(self.best, mean_return)
         return None
 
     def state_dict(self) -> dict[str, Any]:
-        return {"stage": self.stage, "h": self.h, "best": self.best, "horizon": self.horizon,
-                "curriculum_env_rng": env_rng_state(self.env)}
+        return {
+            "stage": self.stage,
+            "h": self.h,
+            "best": self.best,
+            "horizon": self.horizon,
+            "curriculum_env_rng": env_rng_state(self.env),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.stage, self.best, self.horizon = state["stage"], state["best"], state["horizon"]
@@ -177,9 +203,9 @@ def train(ctx: TrainContext, config: JSRLConfig) -> ReplayBuffer:
     space = curriculum_env.action_space
     guide = ImitationPolicy(config, ctx.demos, space.low, space.high, ctx.seed)
     horizon = config.guide_horizon or measure_horizon(
-        curriculum_env, lambda obs: guide(obs[None])[0], config.horizon_episodes)
-    explorer = JumpStartExplorer(agent, guide, config, curriculum_env, horizon,
-                                 ctx.eval_episodes)
+        curriculum_env, lambda obs: guide(obs[None])[0], config.horizon_episodes
+    )
+    explorer = JumpStartExplorer(agent, guide, config, curriculum_env, horizon, ctx.eval_episodes)
     try:
         return run_off_policy(ctx, agent, explorer)
     finally:

@@ -21,8 +21,14 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from baselines.common.checkpoint import (due, env_rng_state, load_checkpoint, restore_env_rng,
-                                         save_checkpoint, stop_if_past)
+from baselines.common.checkpoint import (
+    due,
+    env_rng_state,
+    load_checkpoint,
+    restore_env_rng,
+    save_checkpoint,
+    stop_if_past,
+)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
 from baselines.common.networks import mlp
@@ -61,9 +67,15 @@ class PPOConfig:
             raise ValueError("rollout_steps, minibatch_size and epochs must be positive")
 
 
-def gae_advantages(rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray,
-                   terminated: np.ndarray, episode_over: np.ndarray, gamma: float,
-                   lam: float) -> np.ndarray:
+def gae_advantages(
+    rewards: np.ndarray,
+    values: np.ndarray,
+    next_values: np.ndarray,
+    terminated: np.ndarray,
+    episode_over: np.ndarray,
+    gamma: float,
+    lam: float,
+) -> np.ndarray:
     """Generalised advantage estimation over one rollout.
 
     delta_t = r_t + gamma * (1 - terminated_t) * V(s'_t) - V(s_t)
@@ -81,8 +93,12 @@ def gae_advantages(rewards: np.ndarray, values: np.ndarray, next_values: np.ndar
     return advantages
 
 
-def clipped_surrogate_loss(new_log_prob: torch.Tensor, old_log_prob: torch.Tensor,
-                           advantages: torch.Tensor, clip_coef: float) -> torch.Tensor:
+def clipped_surrogate_loss(
+    new_log_prob: torch.Tensor,
+    old_log_prob: torch.Tensor,
+    advantages: torch.Tensor,
+    clip_coef: float,
+) -> torch.Tensor:
     """-E[min(rho A, clip(rho, 1-eps, 1+eps) A)]."""
     ratio = torch.exp(new_log_prob - old_log_prob)
     clipped = torch.clamp(ratio, 1.0 - clip_coef, 1.0 + clip_coef)
@@ -98,15 +114,24 @@ def normal_log_prob(value: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) 
 def _orthogonal_init(net: nn.Sequential, output_gain: float) -> None:
     linears = [m for m in net if isinstance(m, nn.Linear)]
     for i, layer in enumerate(linears):
-        nn.init.orthogonal_(layer.weight, gain=output_gain if i == len(linears) - 1 else math.sqrt(2))
+        nn.init.orthogonal_(
+            layer.weight, gain=output_gain if i == len(linears) - 1 else math.sqrt(2)
+        )
         nn.init.zeros_(layer.bias)
 
 
 class PPOAgent(nn.Module):
     """Gaussian policy (state-independent log-std), value network, normalisers, optimiser."""
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: PPOConfig, seed: int):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: PPOConfig,
+        seed: int,
+    ):
         super().__init__()
         self.config = config
         torch.manual_seed(seed)
@@ -115,8 +140,9 @@ class PPOAgent(nn.Module):
         _orthogonal_init(self.actor_mean, 0.01)
         _orthogonal_init(self.critic, 1.0)
         self.log_std = nn.Parameter(torch.zeros(act_dim))
-        self.optimizer = torch.optim.Adam(self.parameters(), lr=config.learning_rate, eps=1e-5,
-                                          foreach=True)
+        self.optimizer = torch.optim.Adam(
+            self.parameters(), lr=config.learning_rate, eps=1e-5, foreach=True
+        )
         self.obs_stats = RunningMeanStd((obs_dim,))
         self.action_low, self.action_high = action_low, action_high
         self.noise = torch.Generator().manual_seed(seed + 1)
@@ -130,8 +156,9 @@ class PPOAgent(nn.Module):
 
     def distribution(self, norm_obs: torch.Tensor) -> torch.distributions.Normal:
         # the arguments are valid by construction; checking them costs more than the math
-        return torch.distributions.Normal(self.actor_mean(norm_obs), self.log_std.exp(),
-                                          validate_args=False)
+        return torch.distributions.Normal(
+            self.actor_mean(norm_obs), self.log_std.exp(), validate_args=False
+        )
 
     def value(self, norm_obs: torch.Tensor) -> torch.Tensor:
         return self.critic(norm_obs).squeeze(-1)
@@ -147,8 +174,12 @@ class PPOAgent(nn.Module):
 
     def checkpoint_state(self) -> dict:
         """Weights, optimiser, observation statistics and the sampling stream."""
-        return {"modules": self.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "obs_stats": dict(self.obs_stats.__dict__), "noise": self.noise.get_state()}
+        return {
+            "modules": self.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "obs_stats": dict(self.obs_stats.__dict__),
+            "noise": self.noise.get_state(),
+        }
 
     def load_checkpoint_state(self, state: dict) -> None:
         self.load_state_dict(state["modules"])
@@ -165,8 +196,9 @@ class PPOAgent(nn.Module):
 def build_agent(ctx: TrainContext, config: PPOConfig) -> PPOAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
-    agent = PPOAgent(probe.observation_space.shape[0], space.shape[0], space.low, space.high,
-                     config, ctx.seed)
+    agent = PPOAgent(
+        probe.observation_space.shape[0], space.shape[0], space.low, space.high, config, ctx.seed
+    )
     probe.close()
     return agent
 
@@ -188,8 +220,9 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
     names = ("obs", "next_obs", "actions", "log_probs", "rewards", "terminated", "over")
 
     def evaluate_and_record(step: int) -> None:
-        point = EvalPoint(step, tuple(evaluate(eval_env, agent.act_deterministic,
-                                               ctx.eval_episodes)))
+        point = EvalPoint(
+            step, tuple(evaluate(eval_env, agent.act_deterministic, ctx.eval_episodes))
+        )
         curve.append(point)
         ctx.on_eval(point)
 
@@ -225,10 +258,19 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
             clipped = np.clip(action, agent.action_low, agent.action_high)
             raw_next, reward, terminated, truncated, _ = env.step(clipped)
             episode_over = terminated or truncated
-            for name, value in zip(names, (
-                    norm_obs, agent.normalize(raw_next), action, log_prob,
+            for name, value in zip(
+                names,
+                (
+                    norm_obs,
+                    agent.normalize(raw_next),
+                    action,
+                    log_prob,
                     reward_scaler(reward, episode_over) if cfg.normalize_rewards else reward,
-                    float(terminated), float(episode_over)), strict=True):
+                    float(terminated),
+                    float(episode_over),
+                ),
+                strict=True,
+            ):
                 collected[name].append(value)
             raw_obs = raw_next
             step += 1
@@ -236,22 +278,33 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
                 evaluate_and_record(step)  # the final one comes after the last update
             ctx.on_steps(1)
             if episode_over:
-                if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                        and due(step, last_checkpoint, ctx.checkpoint_interval,
-                                ctx.deadline):
-                    save_checkpoint(ctx.checkpoint_path, {
-                        "step": step, "rollout": rollout, "collected": collected,
-                        "agent": agent.checkpoint_state(),
-                        "reward_stats": dict(reward_scaler.stats.__dict__),
-                        "reward_discounted": reward_scaler.discounted,
-                        "batch_rng": batch_rng, "curve": curve, "env_rng": env_rng_state(env),
-                        "eval_env_rng": env_rng_state(eval_env)})
+                if (
+                    ctx.checkpoint_path is not None
+                    and step < ctx.total_steps
+                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline)
+                ):
+                    save_checkpoint(
+                        ctx.checkpoint_path,
+                        {
+                            "step": step,
+                            "rollout": rollout,
+                            "collected": collected,
+                            "agent": agent.checkpoint_state(),
+                            "reward_stats": dict(reward_scaler.stats.__dict__),
+                            "reward_discounted": reward_scaler.discounted,
+                            "batch_rng": batch_rng,
+                            "curve": curve,
+                            "env_rng": env_rng_state(env),
+                            "eval_env_rng": env_rng_state(eval_env),
+                        },
+                    )
                     last_checkpoint = step
                     stop_if_past(ctx.deadline, step)
                 raw_obs, _ = env.reset()
 
         obs_buf, next_obs_buf, act_buf, logp_buf, rew_buf, term_buf, over_buf = (
-            collected[name] for name in names)
+            collected[name] for name in names
+        )
         collected = {name: [] for name in names}
         obs_t = torch.as_tensor(np.array(obs_buf))
         act_t = torch.as_tensor(np.array(act_buf))
@@ -259,22 +312,30 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
         with torch.no_grad():
             values = agent.value(obs_t).numpy()
             next_values = agent.value(torch.as_tensor(np.array(next_obs_buf))).numpy()
-        advantages = gae_advantages(np.array(rew_buf), values, next_values, np.array(term_buf),
-                                    np.array(over_buf), cfg.gamma, cfg.gae_lambda)
+        advantages = gae_advantages(
+            np.array(rew_buf),
+            values,
+            next_values,
+            np.array(term_buf),
+            np.array(over_buf),
+            cfg.gamma,
+            cfg.gae_lambda,
+        )
         returns_t = torch.as_tensor((advantages + values).astype(np.float32))
         adv_t = torch.as_tensor(advantages.astype(np.float32))
 
         for _ in range(cfg.epochs):
             order = batch_rng.permutation(horizon)
             for start in range(0, horizon, cfg.minibatch_size):
-                idx = torch.as_tensor(order[start:start + cfg.minibatch_size])
+                idx = torch.as_tensor(order[start : start + cfg.minibatch_size])
                 dist = agent.distribution(obs_t[idx])
                 new_logp = dist.log_prob(act_t[idx]).sum(-1)
                 mb_adv = adv_t[idx]
                 if len(idx) > 1:
                     mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-                policy_loss = clipped_surrogate_loss(new_logp, old_logp_t[idx], mb_adv,
-                                                     cfg.clip_coef)
+                policy_loss = clipped_surrogate_loss(
+                    new_logp, old_logp_t[idx], mb_adv, cfg.clip_coef
+                )
                 value_loss = 0.5 * F.mse_loss(agent.value(obs_t[idx]), returns_t[idx])
                 entropy = dist.entropy().sum(-1).mean()
                 loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy

@@ -35,8 +35,7 @@ def bc_loss(predicted_actions: torch.Tensor, demo_actions: torch.Tensor) -> torc
     return (predicted_actions - demo_actions).pow(2).sum(-1).mean()
 
 
-def behaviour_clone(agent: PPOAgent, demos: DemoSet, config: PPOBCConfig, seed: int
-                    ) -> list[float]:
+def behaviour_clone(agent: PPOAgent, demos: DemoSet, config: PPOBCConfig, seed: int) -> list[float]:
     """Fit the policy mean to the demonstrations; return the loss of every step."""
     if config.normalize_observations:
         agent.obs_stats.update(demos.observations)

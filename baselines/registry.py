@@ -34,8 +34,9 @@ class Algorithm:
         known = {f.name: f for f in dataclasses.fields(self.config_cls)}
         unknown = sorted(set(overrides) - set(known))
         if unknown:
-            raise KeyError(f"unknown hyperparameter(s) {unknown} for '{self.name}'; "
-                           f"known: {sorted(known)}")
+            raise KeyError(
+                f"unknown hyperparameter(s) {unknown} for '{self.name}'; known: {sorted(known)}"
+            )
         return self.config_cls(**overrides)
 
 
@@ -43,8 +44,9 @@ _REGISTRY: dict[str, Algorithm] = {}
 _discovered = False
 
 
-def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool = False
-             ) -> Callable[[Callable], Callable]:
+def register(
+    name: str, config_cls: type, needs_demos: bool = False, gpu: bool = False
+) -> Callable[[Callable], Callable]:
     """Decorator for an algorithm's ``train`` function."""
 
     def wrap(train: Callable) -> Callable:
@@ -52,8 +54,9 @@ def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool =
         if registered is not None and getattr(registered, "__wrapped__", None) is not train:
             raise ValueError(f"algorithm '{name}' registered twice")
         summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
-        _REGISTRY[name] = Algorithm(name, config_cls, _flushing_denormals(train), needs_demos,
-                                    summary, gpu)
+        _REGISTRY[name] = Algorithm(
+            name, config_cls, _flushing_denormals(train), needs_demos, summary, gpu
+        )
         return train
 
     return wrap
@@ -61,6 +64,7 @@ def register(name: str, config_cls: type, needs_demos: bool = False, gpu: bool =
 
 def _flushing_denormals(train: Callable) -> Callable:
     """``train`` with denormal floats flushed to zero while it runs (why: flush_denormals)."""
+
     @functools.wraps(train)
     def flushed(*args: Any, **kwargs: Any) -> Any:
         with flush_denormals():
@@ -115,5 +119,6 @@ def get_algorithm(name: str) -> Algorithm:
     known = algorithms()
     if name not in known:
         raise UnknownAlgorithmError(
-            f"unknown algorithm '{name}'; known algorithms: {', '.join(sorted(known))}")
+            f"unknown algorithm '{name}'; known algorithms: {', '.join(sorted(known))}"
+        )
     return known[name]

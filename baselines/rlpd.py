@@ -70,12 +70,15 @@ class RLPDConfig(TwinQSACConfig):
         if self.utd < 1 or not 1 <= self.num_min_qs <= self.num_qs:
             raise ValueError("utd must be >= 1 and 1 <= num_min_qs <= num_qs")
         if self.batch_size % 2:
-            raise ValueError(f"RLPD samples half of each batch from the demonstrations; "
-                             f"batch_size must be even, got {self.batch_size}")
+            raise ValueError(
+                f"RLPD samples half of each batch from the demonstrations; "
+                f"batch_size must be even, got {self.batch_size}"
+            )
         # the shared loop takes ``gradient_steps`` minibatches per env step: that is ``utd``
         if self.gradient_steps not in (1, self.utd):
-            raise ValueError("RLPD's gradient steps per env step are set by utd; "
-                             "leave gradient_steps alone")
+            raise ValueError(
+                "RLPD's gradient steps per env step are set by utd; leave gradient_steps alone"
+            )
         self.gradient_steps = self.utd
 
 
@@ -86,14 +89,17 @@ class LayerNormCriticEnsemble(CriticEnsemble):
     def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: tuple[int, ...], n: int):
         super().__init__(obs_dim, act_dim, hidden_sizes, n)
         self.norm_gains = torch.nn.ParameterList(
-            torch.nn.Parameter(torch.ones(n, 1, width)) for width in hidden_sizes)
+            torch.nn.Parameter(torch.ones(n, 1, width)) for width in hidden_sizes
+        )
         self.norm_biases = torch.nn.ParameterList(
-            torch.nn.Parameter(torch.zeros(n, 1, width)) for width in hidden_sizes)
+            torch.nn.Parameter(torch.zeros(n, 1, width)) for width in hidden_sizes
+        )
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, act], dim=-1).expand(self.n, -1, -1)
-        return layer_norm_mlp(x, self.weights, self.biases, self.norm_gains,
-                              self.norm_biases).squeeze(-1)
+        return layer_norm_mlp(
+            x, self.weights, self.biases, self.norm_gains, self.norm_biases
+        ).squeeze(-1)
 
 
 class SymmetricReplay(ReplayBuffer):
@@ -107,27 +113,47 @@ class SymmetricReplay(ReplayBuffer):
         """``batch_size // 2`` demonstration rows first, then the online rows."""
         offline = self.demos.sample(batch_size // 2, rng)
         online = super().sample(batch_size - batch_size // 2, rng)
-        return Batch(*(torch.cat([getattr(offline, name), getattr(online, name)])
-                       for name in ("observations", "actions", "rewards",
-                                    "next_observations", "terminated")))
+        return Batch(
+            *(
+                torch.cat([getattr(offline, name), getattr(online, name)])
+                for name in (
+                    "observations",
+                    "actions",
+                    "rewards",
+                    "next_observations",
+                    "terminated",
+                )
+            )
+        )
 
 
 class RLPDAgent(TwinQSACAgent):
     """Twin-Q SAC's policy and temperature with RLPD's critics and gradient steps."""
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: RLPDConfig, seed: int, device: str = "cpu",
-                 cuda_graphs: bool = True):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: RLPDConfig,
+        seed: int,
+        device: str = "cpu",
+        cuda_graphs: bool = True,
+    ):
         # the policy, temperature and noise stream twin-Q SAC has for this seed
-        super().__init__(obs_dim, act_dim, action_low, action_high, config, seed, device,
-                         cuda_graphs)
+        super().__init__(
+            obs_dim, act_dim, action_low, action_high, config, seed, device, cuda_graphs
+        )
         # RLPD's ensemble replaces the twin critics, drawn next from the same seeded stream
         ensemble = LayerNormCriticEnsemble if config.critic_layer_norm else CriticEnsemble
-        self.critics = ensemble(obs_dim, act_dim, config.hidden_sizes,
-                                n=config.num_qs).to(self.device)
+        self.critics = ensemble(obs_dim, act_dim, config.hidden_sizes, n=config.num_qs).to(
+            self.device
+        )
         self.critics_target = copy.deepcopy(self.critics)
-        self.critic_optimizer = make_adam(self.critics.parameters(), config.learning_rate,
-                                          self.device, True)
+        self.critic_optimizer = make_adam(
+            self.critics.parameters(), config.learning_rate, self.device, True
+        )
         self.critic_step = GraphedStep(self._critic_step, self.device, cuda_graphs)
         self.actor_step = GraphedStep(self._actor_step, self.device, cuda_graphs)
         self.critic_updates = 0
@@ -145,20 +171,33 @@ class RLPDAgent(TwinQSACAgent):
         cfg = self.config
         rows, act_dim = batch.actions.shape
         next_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
-        subset = torch.randperm(cfg.num_qs, generator=self.noise,
-                                device=self.device)[:cfg.num_min_qs]
-        losses = dict(self.critic_step(
-            obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
-            next_obs=batch.next_observations, terminated=batch.terminated,
-            next_noise=next_noise, subset=subset))
+        subset = torch.randperm(cfg.num_qs, generator=self.noise, device=self.device)[
+            : cfg.num_min_qs
+        ]
+        losses = dict(
+            self.critic_step(
+                obs=batch.observations,
+                actions=batch.actions,
+                rewards=batch.rewards,
+                next_obs=batch.next_observations,
+                terminated=batch.terminated,
+                next_noise=next_noise,
+                subset=subset,
+            )
+        )
         self.critic_updates += 1
         if self.critic_updates % cfg.utd == 0:
             new_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
             losses.update(self.actor_step(obs=batch.observations, new_noise=new_noise))
         return losses
 
-    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
-                         alpha: torch.Tensor, subset: torch.Tensor) -> torch.Tensor:
+    def next_state_value(
+        self,
+        next_obs: torch.Tensor,
+        next_noise: torch.Tensor,
+        alpha: torch.Tensor,
+        subset: torch.Tensor,
+    ) -> torch.Tensor:
         """min over the target critics in ``subset`` at a' ~ pi(.|s'), less alpha log pi(a'|s')
         where the entropy is backed up."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
@@ -167,9 +206,16 @@ class RLPDAgent(TwinQSACAgent):
             next_value = next_value - alpha * next_log_prob
         return next_value
 
-    def _critic_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
-                     next_obs: torch.Tensor, terminated: torch.Tensor, next_noise: torch.Tensor,
-                     subset: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _critic_step(
+        self,
+        obs: torch.Tensor,
+        actions: torch.Tensor,
+        rewards: torch.Tensor,
+        next_obs: torch.Tensor,
+        terminated: torch.Tensor,
+        next_noise: torch.Tensor,
+        subset: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
@@ -205,8 +251,10 @@ def demo_transitions_or_fail(demos: DemoSet | None) -> DemoSet:
     if demos is None:
         raise ValueError("RLPD needs demonstrations")
     if getattr(demos, "rewards", None) is None:
-        raise ValueError("RLPD needs demonstration transitions but the file holds (s, a) pairs "
-                         "only; regenerate it with `python -m replicate demos`")
+        raise ValueError(
+            "RLPD needs demonstration transitions but the file holds (s, a) pairs "
+            "only; regenerate it with `python -m replicate demos`"
+        )
     return demos
 
 
@@ -217,8 +265,17 @@ def train(ctx: TrainContext, config: RLPDConfig) -> SymmetricReplay:
     probe = make_env(ctx.env_id)
     obs_dim, space = probe.observation_space.shape[0], probe.action_space
     probe.close()
-    agent = RLPDAgent(obs_dim, space.shape[0], space.low, space.high, config, ctx.seed,
-                      device=ctx.device, cuda_graphs=ctx.cuda_graphs)
-    buffer = SymmetricReplay(demos, obs_dim, space.shape[0],
-                             min(config.buffer_size, ctx.total_steps))
+    agent = RLPDAgent(
+        obs_dim,
+        space.shape[0],
+        space.low,
+        space.high,
+        config,
+        ctx.seed,
+        device=ctx.device,
+        cuda_graphs=ctx.cuda_graphs,
+    )
+    buffer = SymmetricReplay(
+        demos, obs_dim, space.shape[0], min(config.buffer_size, ctx.total_steps)
+    )
     return run_off_policy(ctx, agent, PolicyExplorer(agent), buffer)

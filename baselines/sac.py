@@ -25,15 +25,21 @@ import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.checkpoint import (CheckpointDeviceError, due, env_rng_state,
-                                         load_checkpoint, restore_env_rng, save_checkpoint,
-                                         stop_if_past)
+from baselines.common.checkpoint import (
+    CheckpointDeviceError,
+    due,
+    env_rng_state,
+    load_checkpoint,
+    restore_env_rng,
+    save_checkpoint,
+    stop_if_past,
+)
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import GraphedStep, make_adam
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns, evaluate
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, soft_update
-from baselines.registry import register
 from baselines.common.random_start import random_start_action
+from baselines.registry import register
 from envs import make_env
 
 
@@ -61,8 +67,13 @@ class SACConfig:
             raise ValueError("batch_size, buffer_size and gradient_steps must be positive")
 
 
-def q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_values: torch.Tensor,
-             gamma: float, reward_scale: float) -> torch.Tensor:
+def q_target(
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    next_values: torch.Tensor,
+    gamma: float,
+    reward_scale: float,
+) -> torch.Tensor:
     """y_q = scale * r + gamma * (1 - terminated) * V'(s')."""
     return reward_scale * rewards + gamma * (1.0 - terminated) * next_values
 
@@ -106,9 +117,17 @@ class PolicyActor:
 class SACAgent(PolicyActor):
     """The five networks, their optimisers, and one gradient step of SAC."""
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: SACConfig, seed: int, device: str = "cpu",
-                 cuda_graphs: bool = True):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: SACConfig,
+        seed: int,
+        device: str = "cpu",
+        cuda_graphs: bool = True,
+    ):
         self.config = config
         self.device = torch.device(device)
         # Weights come from this seed alone, so SAC and DRL-EG with one seed start identical.
@@ -118,21 +137,32 @@ class SACAgent(PolicyActor):
         self.q2 = QNetwork(obs_dim, act_dim, hidden).to(self.device)
         self.v = VNetwork(obs_dim, hidden).to(self.device)
         self.v_target = copy.deepcopy(self.v)
-        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high,
-                                         hidden).to(self.device)
+        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high, hidden).to(
+            self.device
+        )
         lr = config.learning_rate
-        self.q_optimizer = make_adam([*self.q1.parameters(), *self.q2.parameters()], lr,
-                                     self.device, fused_on_cpu=False)
+        self.q_optimizer = make_adam(
+            [*self.q1.parameters(), *self.q2.parameters()], lr, self.device, fused_on_cpu=False
+        )
         self.v_optimizer = make_adam(self.v.parameters(), lr, self.device, fused_on_cpu=False)
-        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device,
-                                          fused_on_cpu=False)
+        self.policy_optimizer = make_adam(
+            self.policy.parameters(), lr, self.device, fused_on_cpu=False
+        )
         self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
         self.gradient_step = GraphedStep(self._gradient_step, self.device, cuda_graphs)
 
     def state_dict(self) -> dict[str, Any]:
         """Networks, optimisers and the exploration noise stream: all a resume needs."""
-        modules = ("q1", "q2", "v", "v_target", "policy",
-                   "q_optimizer", "v_optimizer", "policy_optimizer")
+        modules = (
+            "q1",
+            "q2",
+            "v",
+            "v_target",
+            "policy",
+            "q_optimizer",
+            "v_optimizer",
+            "policy_optimizer",
+        )
         state = {name: getattr(self, name).state_dict() for name in modules}
         state["noise"] = self.noise.get_state()
         return state
@@ -149,19 +179,32 @@ class SACAgent(PolicyActor):
         waits for the GPU, so the training loop reads them seldom."""
         noise = torch.randn(batch.actions.shape, generator=self.noise, device=self.device)
         return self.gradient_step(
-            obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
-            next_obs=batch.next_observations, terminated=batch.terminated, noise=noise)
+            obs=batch.observations,
+            actions=batch.actions,
+            rewards=batch.rewards,
+            next_obs=batch.next_observations,
+            terminated=batch.terminated,
+            noise=noise,
+        )
 
-    def _gradient_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
-                       next_obs: torch.Tensor, terminated: torch.Tensor, noise: torch.Tensor
-                       ) -> dict[str, torch.Tensor]:
+    def _gradient_step(
+        self,
+        obs: torch.Tensor,
+        actions: torch.Tensor,
+        rewards: torch.Tensor,
+        next_obs: torch.Tensor,
+        terminated: torch.Tensor,
+        noise: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         # Soft Q-functions regress on r + gamma V'(s') (eq. 15).
         with torch.no_grad():
-            y_q = q_target(rewards, terminated, self.v_target(next_obs), cfg.gamma,
-                           cfg.reward_scale)
-        q_loss = 0.5 * F.mse_loss(self.q1(obs, actions), y_q) \
-            + 0.5 * F.mse_loss(self.q2(obs, actions), y_q)
+            y_q = q_target(
+                rewards, terminated, self.v_target(next_obs), cfg.gamma, cfg.reward_scale
+            )
+        q_loss = 0.5 * F.mse_loss(self.q1(obs, actions), y_q) + 0.5 * F.mse_loss(
+            self.q2(obs, actions), y_q
+        )
         self.q_optimizer.zero_grad()
         q_loss.backward()
         self.q_optimizer.step()
@@ -182,8 +225,12 @@ class SACAgent(PolicyActor):
         self.policy_optimizer.step()
 
         soft_update(self.v_target, self.v, cfg.tau)
-        return {"q_loss": q_loss.detach(), "v_loss": v_loss.detach(),
-                "policy_loss": policy_loss.detach(), "entropy": -log_prob.detach().mean()}
+        return {
+            "q_loss": q_loss.detach(),
+            "v_loss": v_loss.detach(),
+            "policy_loss": policy_loss.detach(),
+            "entropy": -log_prob.detach().mean(),
+        }
 
 
 class PolicyExplorer:
@@ -215,8 +262,9 @@ class PolicyExplorer:
 DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the critic loss on a GPU
 
 
-def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
-                   buffer: ReplayBuffer | None = None) -> ReplayBuffer:
+def run_off_policy(
+    ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer, buffer: ReplayBuffer | None = None
+) -> ReplayBuffer:
     """The SAC training loop, shared with DRL-EG (Algorithm 1 of the paper).
 
     The executed action is what goes in the buffer, guided or not; the buffer is returned.
@@ -247,17 +295,28 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
         ctx.on_eval(point)
         if ctx.best_policy_path is not None and point.mean_return > best_return:
             best_return = point.mean_return
-            save_checkpoint(ctx.best_policy_path, {"policy": agent.policy.state_dict(),
-                                                   "step": step, "mean_return": best_return})
+            save_checkpoint(
+                ctx.best_policy_path,
+                {"policy": agent.policy.state_dict(), "step": step, "mean_return": best_return},
+            )
 
     def save(step: int) -> None:
-        save_checkpoint(ctx.checkpoint_path, {
-            "step": step, "device": agent.device.type, "agent": agent.state_dict(),
-            "explorer": explorer.state_dict(),
-            "buffer": buffer.state_dict(), "batch_rng": batch_rng, "curve": curve,
-            "counters": (guided_steps, steps_since_eval, best_return),
-            "training_returns": training.state_dict(),
-            "env_rng": env_rng_state(env), "eval_env_rng": env_rng_state(eval_env)})
+        save_checkpoint(
+            ctx.checkpoint_path,
+            {
+                "step": step,
+                "device": agent.device.type,
+                "agent": agent.state_dict(),
+                "explorer": explorer.state_dict(),
+                "buffer": buffer.state_dict(),
+                "batch_rng": batch_rng,
+                "curve": curve,
+                "counters": (guided_steps, steps_since_eval, best_return),
+                "training_returns": training.state_dict(),
+                "env_rng": env_rng_state(env),
+                "eval_env_rng": env_rng_state(eval_env),
+            },
+        )
 
     resumed = load_checkpoint(ctx.checkpoint_path)
     if resumed is None:
@@ -273,7 +332,8 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
             raise CheckpointDeviceError(
                 f"the checkpoint at {ctx.checkpoint_path} was made on {saved_on}; "
                 f"resume it with --device {saved_on}, or delete it to start over on "
-                f"{agent.device.type}")
+                f"{agent.device.type}"
+            )
         agent.load_state_dict(resumed["agent"])
         explorer.load_state_dict(resumed["explorer"])
         buffer.load_state_dict(resumed["buffer"])
@@ -310,19 +370,27 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
                 losses = agent.update(buffer.sample(cfg.batch_size, batch_rng))
             # on a GPU reading a loss stalls the CPU until the update is done, so that the
             # env step cannot overlap it: there the loss is read every hundred steps
-            look = (agent.device.type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0
-                    or step == ctx.total_steps)
+            look = (
+                agent.device.type == "cpu"
+                or step % DIVERGENCE_CHECK_INTERVAL == 0
+                or step == ctx.total_steps
+            )
             if look and not math.isfinite(losses["q_loss"]):
-                raise FloatingPointError(f"SAC diverged at step {step}: losses "
-                                         f"{ {name: float(v) for name, v in losses.items()} }")
+                raise FloatingPointError(
+                    f"SAC diverged at step {step}: losses "
+                    f"{ {name: float(v) for name, v in losses.items()} }"
+                )
 
         if step % ctx.eval_interval == 0 or step == ctx.total_steps:
             evaluate_and_record(step, guided_steps, steps_since_eval)
             guided_steps = steps_since_eval = 0
         ctx.on_steps(1)
         if terminated or truncated:
-            if ctx.checkpoint_path is not None and step < ctx.total_steps \
-                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline):
+            if (
+                ctx.checkpoint_path is not None
+                and step < ctx.total_steps
+                and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline)
+            ):
                 save(step)
                 last_checkpoint = step
                 stop_if_past(ctx.deadline, step)
@@ -336,8 +404,16 @@ def run_off_policy(ctx: TrainContext, agent: SACAgent, explorer: PolicyExplorer,
 def build_agent(ctx: TrainContext, config: SACConfig) -> SACAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
-    agent = SACAgent(probe.observation_space.shape[0], space.shape[0], space.low, space.high,
-                     config, seed=ctx.seed, device=ctx.device, cuda_graphs=ctx.cuda_graphs)
+    agent = SACAgent(
+        probe.observation_space.shape[0],
+        space.shape[0],
+        space.low,
+        space.high,
+        config,
+        seed=ctx.seed,
+        device=ctx.device,
+        cuda_graphs=ctx.cuda_graphs,
+    )
     probe.close()
     return agent
 

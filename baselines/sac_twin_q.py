@@ -4,7 +4,7 @@ The SAC most libraries ship (Stable-Baselines3, CleanRL): no V network; two soft
 with Polyak-averaged copies, and an entropy temperature alpha tuned towards a target
 entropy of -|A|. Per gradient step:
 
-    y     = r + gamma * (1 - terminated) * (min_i Q'_i(s', a') - alpha * log pi(a'|s')),  a' ~ pi(.|s')
+    y = r + gamma * (1 - terminated) * (min_i Q'_i(s', a') - alpha * log pi(a'|s')),  a' ~ pi(.|s')
     J_Q   = 1/2 sum_i E[(Q_i(s, a) - y)^2]
     J_pi  = E[alpha * log pi(a|s) - min_i Q_i(s, a)],  a ~ pi(.|s) reparameterised
     J_a   = E[-log alpha * (log pi(a|s) + target_entropy)]
@@ -76,7 +76,9 @@ class CriticEnsemble(nn.Module):
         self.biases = nn.ParameterList()
         for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
             bound = 1.0 / math.sqrt(fan_in)
-            self.weights.append(nn.Parameter(torch.empty(n, fan_in, fan_out).uniform_(-bound, bound)))
+            self.weights.append(
+                nn.Parameter(torch.empty(n, fan_in, fan_out).uniform_(-bound, bound))
+            )
             self.biases.append(nn.Parameter(torch.empty(n, 1, fan_out).uniform_(-bound, bound)))
         self.n = n
 
@@ -93,19 +95,29 @@ class CriticEnsemble(nn.Module):
 class TwinQSACAgent(PolicyActor):
     """Policy, twin critics with their targets, the temperature, and one gradient step."""
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low: np.ndarray,
-                 action_high: np.ndarray, config: TwinQSACConfig, seed: int, device: str = "cpu",
-                 cuda_graphs: bool = True):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: TwinQSACConfig,
+        seed: int,
+        device: str = "cpu",
+        cuda_graphs: bool = True,
+    ):
         self.config = config
         self.device = torch.device(device)
         torch.manual_seed(seed)
         hidden = config.hidden_sizes
         self.critics = CriticEnsemble(obs_dim, act_dim, hidden).to(self.device)
         self.critics_target = copy.deepcopy(self.critics)
-        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high,
-                                         hidden).to(self.device)
-        self.log_alpha = torch.tensor([math.log(config.initial_alpha)], device=self.device,
-                                      requires_grad=True)
+        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high, hidden).to(
+            self.device
+        )
+        self.log_alpha = torch.tensor(
+            [math.log(config.initial_alpha)], device=self.device, requires_grad=True
+        )
         self.target_entropy = config.target_entropy_per_action_dim * act_dim
         lr = config.learning_rate
         # fused Adam: one kernel per optimiser step instead of a loop over parameters
@@ -116,8 +128,14 @@ class TwinQSACAgent(PolicyActor):
         self.gradient_step = GraphedStep(self._gradient_step, self.device, cuda_graphs)
 
     def state_dict(self) -> dict[str, Any]:
-        modules = ("critics", "critics_target", "policy",
-                   "critic_optimizer", "policy_optimizer", "alpha_optimizer")
+        modules = (
+            "critics",
+            "critics_target",
+            "policy",
+            "critic_optimizer",
+            "policy_optimizer",
+            "alpha_optimizer",
+        )
         state = {name: getattr(self, name).state_dict() for name in modules}
         state["log_alpha"] = self.log_alpha.detach().clone()
         state["noise"] = self.noise.get_state()
@@ -141,25 +159,39 @@ class TwinQSACAgent(PolicyActor):
         next_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
         new_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
         return self.gradient_step(
-            obs=batch.observations, actions=batch.actions, rewards=batch.rewards,
-            next_obs=batch.next_observations, terminated=batch.terminated,
-            next_noise=next_noise, new_noise=new_noise, **self.target_inputs(batch))
+            obs=batch.observations,
+            actions=batch.actions,
+            rewards=batch.rewards,
+            next_obs=batch.next_observations,
+            terminated=batch.terminated,
+            next_noise=next_noise,
+            new_noise=new_noise,
+            **self.target_inputs(batch),
+        )
 
     def target_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Further tensors that ``next_state_value`` takes (IBRL: the imitation action at s')."""
         return {}
 
-    def next_state_value(self, next_obs: torch.Tensor, next_noise: torch.Tensor,
-                         alpha: torch.Tensor) -> torch.Tensor:
+    def next_state_value(
+        self, next_obs: torch.Tensor, next_noise: torch.Tensor, alpha: torch.Tensor
+    ) -> torch.Tensor:
         """Soft value of s' under the target critics: min_i Q'_i(s', a') - alpha log pi(a'|s')."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
         next_q = self.critics_target(next_obs, next_actions).min(dim=0).values
         return next_q - alpha * next_log_prob
 
-    def _gradient_step(self, obs: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
-                       next_obs: torch.Tensor, terminated: torch.Tensor,
-                       next_noise: torch.Tensor, new_noise: torch.Tensor,
-                       **target_inputs: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _gradient_step(
+        self,
+        obs: torch.Tensor,
+        actions: torch.Tensor,
+        rewards: torch.Tensor,
+        next_obs: torch.Tensor,
+        terminated: torch.Tensor,
+        next_noise: torch.Tensor,
+        new_noise: torch.Tensor,
+        **target_inputs: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
 
@@ -188,16 +220,27 @@ class TwinQSACAgent(PolicyActor):
         self.alpha_optimizer.step()
 
         soft_update(self.critics_target, self.critics, cfg.tau)
-        return {"q_loss": q_loss.detach(), "policy_loss": policy_loss.detach(), "alpha": alpha,
-                "entropy": -log_prob.detach().mean()}
+        return {
+            "q_loss": q_loss.detach(),
+            "policy_loss": policy_loss.detach(),
+            "alpha": alpha,
+            "entropy": -log_prob.detach().mean(),
+        }
 
 
 def build_agent(ctx: TrainContext, config: TwinQSACConfig) -> TwinQSACAgent:
     probe = make_env(ctx.env_id)
     space = probe.action_space
-    agent = TwinQSACAgent(probe.observation_space.shape[0], space.shape[0], space.low,
-                          space.high, config, seed=ctx.seed, device=ctx.device,
-                          cuda_graphs=ctx.cuda_graphs)
+    agent = TwinQSACAgent(
+        probe.observation_space.shape[0],
+        space.shape[0],
+        space.low,
+        space.high,
+        config,
+        seed=ctx.seed,
+        device=ctx.device,
+        cuda_graphs=ctx.cuda_graphs,
+    )
     probe.close()
     return agent
 

@@ -40,8 +40,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.batched import (BatchContext, run_stacked_off_policy, stacked_agent,  # noqa: E402
-                               stacked_explorer)
+from baselines.batched import BatchContext, run_stacked_off_policy, stacked_agent, stacked_explorer  # noqa: E402
 from baselines.common.context import TrainContext  # noqa: E402
 from baselines.common.stacked import StackedReplay  # noqa: E402
 from baselines.registry import batched_trainer, get_algorithm  # noqa: E402
@@ -73,14 +72,24 @@ class StepClock:
         return round((self.end_steps - self.start_steps) / (self.end - self.start), 1)
 
 
+FIG3_PROJECTION = "fig3 batched part (sac, drl-eg, drl-eg-gmm; 4 MuJoCo envs x 5 seeds x 1M) hours"  # noqa: E501
+
+
 def demos_of(env_id: str):
     from replicate.demos import default_demo_path, load_demos
 
     return load_demos(default_demo_path(env_id), env_id)
 
 
-def batched_rate(algo: str, env_id: str, members: int, steps: int, device: str,
-                 env_workers: int, guide_threshold: float | None = None) -> dict:
+def batched_rate(
+    algo: str,
+    env_id: str,
+    members: int,
+    steps: int,
+    device: str,
+    env_workers: int,
+    guide_threshold: float | None = None,
+) -> dict:
     """Train ``members`` seeds of ``algo`` for WARMUP + ``steps`` steps; summed env steps/s
     over the timed steps."""
     algorithm = get_algorithm(algo)
@@ -88,8 +97,17 @@ def batched_rate(algo: str, env_id: str, members: int, steps: int, device: str,
     configs = [algorithm.make_config(overrides) for _ in range(members)]
     demos = demos_of(env_id) if algorithm.needs_demos else None
     total = WARMUP + steps
-    contexts = [TrainContext(env_id=env_id, seed=seed, total_steps=total, eval_interval=HUGE,
-                             eval_episodes=1, demos=demos) for seed in range(members)]
+    contexts = [
+        TrainContext(
+            env_id=env_id,
+            seed=seed,
+            total_steps=total,
+            eval_interval=HUGE,
+            eval_episodes=1,
+            demos=demos,
+        )
+        for seed in range(members)
+    ]
     clock = StepClock(members, WARMUP, total)
     bctx = BatchContext(contexts, device=device, env_workers=env_workers, on_steps=clock)
     if device == "cuda":
@@ -99,9 +117,16 @@ def batched_rate(algo: str, env_id: str, members: int, steps: int, device: str,
     started = time.perf_counter()
     run_stacked_off_policy(bctx, agent, explorer)
     ended = time.perf_counter()
-    result = {"algo": algo, "env": env_id, "members": members, "device": device,
-              "env_workers": env_workers, "timed_steps_per_member": steps,
-              "env_steps_per_s": clock.rate(), "wall_s": round(ended - started, 1)}
+    result = {
+        "algo": algo,
+        "env": env_id,
+        "members": members,
+        "device": device,
+        "env_workers": env_workers,
+        "timed_steps_per_member": steps,
+        "env_steps_per_s": clock.rate(),
+        "wall_s": round(ended - started, 1),
+    }
     if device == "cuda":
         result["gpu_memory_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 3)
     return result
@@ -112,11 +137,25 @@ def one_run_rate(algo: str, env_id: str, steps: int, device: str) -> dict:
     algorithm = get_algorithm(algo)
     demos = demos_of(env_id) if algorithm.needs_demos else None
     clock = StepClock(1, WARMUP, WARMUP + steps)
-    ctx = TrainContext(env_id=env_id, seed=0, total_steps=WARMUP + steps, eval_interval=HUGE,
-                       eval_episodes=1, demos=demos, on_steps=clock, device=device)
+    ctx = TrainContext(
+        env_id=env_id,
+        seed=0,
+        total_steps=WARMUP + steps,
+        eval_interval=HUGE,
+        eval_episodes=1,
+        demos=demos,
+        on_steps=clock,
+        device=device,
+    )
     algorithm.train(ctx, algorithm.make_config({}))
-    return {"algo": algo, "env": env_id, "members": 1, "device": device, "path": "one run",
-            "env_steps_per_s": clock.rate()}
+    return {
+        "algo": algo,
+        "env": env_id,
+        "members": 1,
+        "device": device,
+        "path": "one run",
+        "env_steps_per_s": clock.rate(),
+    }
 
 
 def _concurrent_member(job: tuple) -> None:
@@ -133,43 +172,64 @@ def _concurrent_member(job: tuple) -> None:
     result = batched_rate(algo, env_id, members, steps, device, env_workers)
     clock = clock_box["clock"]
     offset = time.time() - time.perf_counter()
-    result.update(start=clock.start + offset, end=clock.end + offset,
-                  timed=clock.end_steps - clock.start_steps)
+    result.update(
+        start=clock.start + offset,
+        end=clock.end + offset,
+        timed=clock.end_steps - clock.start_steps,
+    )
     results.put(result)
 
 
-def concurrent_batches(algo: str, env_id: str, members: int, processes: int, steps: int,
-                       env_workers: int, device: str = "cuda") -> dict:
+def concurrent_batches(
+    algo: str,
+    env_id: str,
+    members: int,
+    processes: int,
+    steps: int,
+    env_workers: int,
+    device: str = "cuda",
+) -> dict:
     """``processes`` batches of ``members`` at once on one GPU (what a grid's workers do):
     env steps/s summed over all of them, over the union of their timed windows."""
     ctx = mp.get_context("spawn")
     barrier, results = ctx.Barrier(processes), ctx.Queue()
-    procs = [ctx.Process(target=_concurrent_member, args=((algo, env_id, members, steps,
-                                                           env_workers, barrier, device,
-                                                           results),))
-             for _ in range(processes)]
+    procs = [
+        ctx.Process(
+            target=_concurrent_member,
+            args=((algo, env_id, members, steps, env_workers, barrier, device, results),),
+        )
+        for _ in range(processes)
+    ]
     for proc in procs:
         proc.start()
     parts = [results.get() for _ in procs]
     for proc in procs:
         proc.join()
     window = max(p["end"] for p in parts) - min(p["start"] for p in parts)
-    return {"algo": algo, "env": env_id, "members per process": members,
-            "processes": processes, "env_workers per process": env_workers,
-            "env_steps_per_s": round(sum(p["timed"] for p in parts) / window, 1),
-            "each": [p["env_steps_per_s"] for p in parts]}
+    return {
+        "algo": algo,
+        "env": env_id,
+        "members per process": members,
+        "processes": processes,
+        "env_workers per process": env_workers,
+        "env_steps_per_s": round(sum(p["timed"] for p in parts) / window, 1),
+        "each": [p["env_steps_per_s"] for p in parts],
+    }
 
 
-def step_time_split(env_id: str, members: int, device: str, env_workers: int,
-                    calls: int = 300) -> dict[str, float]:
+def step_time_split(
+    env_id: str, members: int, device: str, env_workers: int, calls: int = 300
+) -> dict[str, float]:
     """Milliseconds per batched step in each part, each timed alone with the device
     synchronised: the policy's action, the env step, the replay write, the update."""
     from envs.vector import EnvBatch
 
     algorithm = get_algorithm("sac")
     configs = [algorithm.make_config({}) for _ in range(members)]
-    contexts = [TrainContext(env_id=env_id, seed=s, total_steps=10**6, eval_interval=HUGE,
-                             eval_episodes=1) for s in range(members)]
+    contexts = [
+        TrainContext(env_id=env_id, seed=s, total_steps=10**6, eval_interval=HUGE, eval_episodes=1)
+        for s in range(members)
+    ]
     bctx = BatchContext(contexts, device=device, env_workers=env_workers)
     agent = stacked_agent(bctx, configs, twin_q=False)
     spec = env_spec(env_id)
@@ -193,8 +253,12 @@ def step_time_split(env_id: str, members: int, device: str, env_workers: int,
                 timings = {}
             actions = timed("policy action", lambda: agent.act(obs))
             result = timed("env step", lambda: envs.step(actions))
-            timed("replay write", lambda: agent.buffer.add(obs, actions, result.rewards,
-                                                           result.next_obs, result.terminated))
+            timed(
+                "replay write",
+                lambda: agent.buffer.add(
+                    obs, actions, result.rewards, result.next_obs, result.terminated
+                ),
+            )
             obs = result.obs
             timed("gradient step", lambda: agent.update(rngs))
     return {name: round(1000 * seconds / calls, 3) for name, seconds in timings.items()}
@@ -212,16 +276,27 @@ def update_precision(calls: int = 50) -> dict[str, float]:
     default_precision = matmul.fp32_precision
     out = {}
     for members in (1, 3):
-        contexts = [TrainContext(env_id="Hopper-v5", seed=seed, total_steps=10**6,
-                                 eval_interval=HUGE, eval_episodes=1)
-                    for seed in range(members)]
-        agent = stacked_agent(BatchContext(contexts),
-                              [get_algorithm("sac").make_config({})] * members, twin_q=False)
+        contexts = [
+            TrainContext(
+                env_id="Hopper-v5",
+                seed=seed,
+                total_steps=10**6,
+                eval_interval=HUGE,
+                eval_episodes=1,
+            )
+            for seed in range(members)
+        ]
+        agent = stacked_agent(
+            BatchContext(contexts), [get_algorithm("sac").make_config({})] * members, twin_q=False
+        )
         g = torch.Generator().manual_seed(0)
-        batch = Batch(torch.randn(members, 256, 11, generator=g),
-                      torch.rand(members, 256, 3, generator=g),
-                      torch.randn(members, 256, generator=g),
-                      torch.randn(members, 256, 11, generator=g), torch.zeros(members, 256))
+        batch = Batch(
+            torch.randn(members, 256, 11, generator=g),
+            torch.rand(members, 256, 3, generator=g),
+            torch.randn(members, 256, generator=g),
+            torch.randn(members, 256, 11, generator=g),
+            torch.zeros(members, 256),
+        )
         noise = torch.randn(members, 256, 3, generator=g)
         modes = [("fp32", False, "ieee"), ("fp32, bf16 products", False, "bf16")]
         if members == 1:
@@ -240,7 +315,8 @@ def update_precision(calls: int = 50) -> dict[str, float]:
                 matmul.fp32_precision = default_precision
             out[f"{name} N={members}"] = round(1000 * (time.perf_counter() - start) / calls, 3)
         out[f"bf16 products / fp32 N={members}"] = round(
-            out[f"fp32, bf16 products N={members}"] / out[f"fp32 N={members}"], 3)
+            out[f"fp32, bf16 products N={members}"] / out[f"fp32 N={members}"], 3
+        )
     out["bf16 autocast / fp32 N=1"] = round(out["bf16 autocast N=1"] / out["fp32 N=1"], 3)
     return out
 
@@ -253,8 +329,17 @@ def registered_batch_rate(algo: str, env_id: str, members: int, steps: int) -> f
     configs = [algorithm.make_config({}) for _ in range(members)]
     demos = demos_of(env_id) if algorithm.needs_demos else None
     total = WARMUP + steps
-    contexts = [TrainContext(env_id=env_id, seed=seed, total_steps=total, eval_interval=HUGE,
-                             eval_episodes=1, demos=demos) for seed in range(members)]
+    contexts = [
+        TrainContext(
+            env_id=env_id,
+            seed=seed,
+            total_steps=total,
+            eval_interval=HUGE,
+            eval_episodes=1,
+            demos=demos,
+        )
+        for seed in range(members)
+    ]
     clock = StepClock(members, WARMUP, total)
     batched_trainer(algo)(BatchContext(contexts, on_steps=clock), configs)
     return clock.rate()
@@ -272,8 +357,13 @@ def rlfd_cpu_section(steps: int, write) -> None:
         one = one_run_rate(algo, RLFD_CPU_ENV, steps, "cpu")["env_steps_per_s"]
         write("rlfd cpu", {f"{algo} one run": round(one, 1)})
         rate = registered_batch_rate(algo, RLFD_CPU_ENV, 5, steps)
-        write("rlfd cpu", {f"{algo} batched N=5": round(rate, 1),
-                           f"{algo} batched N=5 / one run": round(rate / one, 3)})
+        write(
+            "rlfd cpu",
+            {
+                f"{algo} batched N=5": round(rate, 1),
+                f"{algo} batched N=5 / one run": round(rate / one, 3),
+            },
+        )
 
 
 def _cpu_process(job: tuple[int, int]) -> float:
@@ -296,8 +386,13 @@ def cpu_section(steps: int, write) -> None:
         write("cpu", {"machine one run per process": round(one, 1)})
         for members in (1, 2, 4, 8):
             rate = sum(pool.map(_cpu_process, [(members, max(200, steps // members))] * cores))
-            write("cpu", {f"machine batched N={members} per process": round(rate, 1),
-                          f"batched N={members} / one run per process": round(rate / one, 3)})
+            write(
+                "cpu",
+                {
+                    f"machine batched N={members} per process": round(rate, 1),
+                    f"batched N={members} / one run per process": round(rate / one, 3),
+                },
+            )
     write("cpu", {"update ms": update_precision()})
 
 
@@ -327,8 +422,10 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
         except Exception:
             write("gpu_errors", {f"one run {env_id}": traceback.format_exc()})
     try:
-        write("gpu_step_split_ms", {"sac Hopper-v5 N=64": step_time_split(
-            "Hopper-v5", 64, "cuda", env_workers)})
+        write(
+            "gpu_step_split_ms",
+            {"sac Hopper-v5 N=64": step_time_split("Hopper-v5", 64, "cuda", env_workers)},
+        )
     except Exception:
         write("gpu_errors", {"split": traceback.format_exc()})
     # Projection: Hopper's rate stands for Walker2d and HalfCheetah (same sizes within 2x),
@@ -337,40 +434,57 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
     for (algo, env_id, members), rate in rates.items():
         best[(algo, env_id)] = max(best.get((algo, env_id), 0.0), rate)
     if best:
+
         def rate_of(algo: str, env_id: str) -> float:
             source = "Ant-v5" if env_id == "Ant-v5" else "Hopper-v5"
             return best.get((algo, source)) or best.get(("sac", source), float("nan"))
-        fig3 = sum(5 * 1_000_000 / rate_of(a, e) for e in PAPER_ENVS
-                   for a in ("sac", "drl-eg", "drl-eg"))  # drl-eg-gmm costs about drl-eg
+
+        fig3 = sum(
+            5 * 1_000_000 / rate_of(a, e) for e in PAPER_ENVS for a in ("sac", "drl-eg", "drl-eg")
+        )  # drl-eg-gmm costs about drl-eg
         fig4 = sum(4 * 1_000_000 / rate_of(a, "Ant-v5") for a in ("sac", "drl-eg"))
-        write("projection", {
-            "fig3 batched part (sac, drl-eg, drl-eg-gmm; 4 MuJoCo envs x 5 seeds x 1M) hours":
-                round(fig3 / 3600, 2),
-            "fig4 (Ant, sac + drl-eg, 4 seeds x 1M) hours": round(fig4 / 3600, 2),
-            "assumes": "each cell's batch at the best measured summed rate, cells one after "
-                       "another; DDPGfD, PPO and PPO+BC (one run per process on the cores) "
-                       "are not in these hours"})
+        write(
+            "projection",
+            {
+                FIG3_PROJECTION: round(fig3 / 3600, 2),
+                "fig4 (Ant, sac + drl-eg, 4 seeds x 1M) hours": round(fig4 / 3600, 2),
+                "assumes": "each cell's batch at the best measured summed rate, cells one after "
+                "another; DDPGfD, PPO and PPO+BC (one run per process on the cores) "
+                "are not in these hours",
+            },
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cpu", action="store_true", help="the CPU section")
     parser.add_argument("--gpu", action="store_true", help="the GPU section")
-    parser.add_argument("--rlfd-cpu", action="store_true",
-                        help="IBRL and RLPD, batch of 5 against one run, on one CPU thread")
-    parser.add_argument("--update-precision", action="store_true",
-                        help="only the CPU section's update timings (fp32, bf16 autocast, "
-                             "bf16 products)")
-    parser.add_argument("--steps", type=int, default=1000,
-                        help="timed env steps per member after the warm-up")
+    parser.add_argument(
+        "--rlfd-cpu",
+        action="store_true",
+        help="IBRL and RLPD, batch of 5 against one run, on one CPU thread",
+    )
+    parser.add_argument(
+        "--update-precision",
+        action="store_true",
+        help="only the CPU section's update timings (fp32, bf16 autocast, bf16 products)",
+    )
+    parser.add_argument(
+        "--steps", type=int, default=1000, help="timed env steps per member after the warm-up"
+    )
     parser.add_argument("--env-workers", type=int, default=max(0, (os.cpu_count() or 1) - 2))
     parser.add_argument("--out", type=Path, default=Path("reports/bench/batched.json"))
     args = parser.parse_args()
-    results: dict = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                                 "torch": torch.__version__,
-                                 "gpu": torch.cuda.get_device_name()
-                                 if torch.cuda.is_available() else None},
-                     "command": " ".join(sys.argv), "steps": args.steps}
+    results: dict = {
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "torch": torch.__version__,
+            "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None,
+        },
+        "command": " ".join(sys.argv),
+        "steps": args.steps,
+    }
 
     def write(section: str, values: dict) -> None:
         results.setdefault(section, {}).update(values)

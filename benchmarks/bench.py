@@ -82,8 +82,13 @@ def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]
     torch.manual_seed(0)
 
     def net(inputs: int, outputs: int) -> nn.Module:
-        return nn.Sequential(nn.Linear(inputs, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
-                             nn.Linear(256, outputs))
+        return nn.Sequential(
+            nn.Linear(inputs, 256),
+            nn.ReLU(),
+            nn.Linear(256, 256),
+            nn.ReLU(),
+            nn.Linear(256, outputs),
+        )
 
     q1, q2 = net(obs_dim + act_dim, 1), net(obs_dim + act_dim, 1)
     q1_t, q2_t = net(obs_dim + act_dim, 1), net(obs_dim + act_dim, 1)
@@ -101,8 +106,9 @@ def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]
         std = log_std.clamp(-20, 2).exp()
         u = mean + std * torch.randn_like(mean)
         a = torch.tanh(u)
-        logp = (-0.5 * ((u - mean) / std) ** 2 - std.log()).sum(-1, keepdim=True) \
-            - torch.log(1 - a.pow(2) + 1e-6).sum(-1, keepdim=True)
+        logp = (-0.5 * ((u - mean) / std) ** 2 - std.log()).sum(-1, keepdim=True) - torch.log(
+            1 - a.pow(2) + 1e-6
+        ).sum(-1, keepdim=True)
         return a, logp
 
     def update() -> None:
@@ -126,25 +132,31 @@ def make_floor_update(obs_dim: int = 11, act_dim: int = 3) -> Callable[[], None]
         alpha_loss.backward()
         a_opt.step()
         with torch.no_grad():
-            for t, s in zip([*q1_t.parameters(), *q2_t.parameters()],
-                            [*q1.parameters(), *q2.parameters()], strict=True):
+            for t, s in zip(
+                [*q1_t.parameters(), *q2_t.parameters()],
+                [*q1.parameters(), *q2.parameters()],
+                strict=True,
+            ):
                 t.lerp_(s, 0.005)
 
     return update
 
 
-def make_harness_update(algo: str = "sac", device: str = "cpu",
-                        cuda_graphs: bool = True) -> Callable[[], None]:
+def make_harness_update(
+    algo: str = "sac", device: str = "cpu", cuda_graphs: bool = True
+) -> Callable[[], None]:
     """One update of the harness's SAC (``sac``: the paper's V-network version, or
     ``sac-twin-q``) on a filled buffer. On CUDA the call waits for the GPU to finish."""
     from baselines.common.buffer import ReplayBuffer
     from baselines.sac import SACAgent, SACConfig
     from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 
-    agent_cls, config = ((SACAgent, SACConfig()) if algo == "sac"
-                         else (TwinQSACAgent, TwinQSACConfig()))
-    agent = agent_cls(11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device,
-                      cuda_graphs=cuda_graphs)
+    agent_cls, config = (
+        (SACAgent, SACConfig()) if algo == "sac" else (TwinQSACAgent, TwinQSACConfig())
+    )
+    agent = agent_cls(
+        11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device, cuda_graphs=cuda_graphs
+    )
     buffer, rng = ReplayBuffer(11, 3, 10_000), np.random.default_rng(0)
     for _ in range(5000):
         buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), 1.0, rng.normal(size=11), False)
@@ -181,7 +193,7 @@ def gemm_gflops(size: int = 256, calls: int = 2000) -> float:
     a, b = torch.randn(size, size), torch.randn(size, size)
     out = torch.empty(size, size)
     seconds = seconds_per_call(lambda: torch.mm(a, b, out=out), calls)
-    return 2 * size ** 3 / seconds / 1e9
+    return 2 * size**3 / seconds / 1e9
 
 
 def update_profile(fn: Callable[[], None], calls: int = 200, top: int = 8) -> list[dict]:
@@ -195,8 +207,14 @@ def update_profile(fn: Callable[[], None], calls: int = 200, top: int = 8) -> li
             fn()
     events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
     total = sum(e.self_cpu_time_total for e in events)
-    return [{"op": e.key, "share": round(e.self_cpu_time_total / total, 3),
-             "calls_per_update": round(e.count / calls, 1)} for e in events[:top]]
+    return [
+        {
+            "op": e.key,
+            "share": round(e.self_cpu_time_total / total, 3),
+            "calls_per_update": round(e.count / calls, 1),
+        }
+        for e in events[:top]
+    ]
 
 
 def ppo_time_split(steps: int = 4096) -> dict[str, float]:
@@ -208,8 +226,9 @@ def ppo_time_split(steps: int = 4096) -> dict[str, float]:
     from baselines.registry import get_algorithm
 
     algorithm = get_algorithm("ppo")
-    ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
-                       eval_episodes=1)
+    ctx = TrainContext(
+        env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps, eval_episodes=1
+    )
     algorithm.train(ctx, algorithm.make_config({}))  # imports and first calls off the clock
     profiler = cProfile.Profile()
     profiler.enable()
@@ -219,8 +238,11 @@ def ppo_time_split(steps: int = 4096) -> dict[str, float]:
     total = max(cum for _, _, _, cum, _ in stats.values())
 
     def cumulative(file_part: str, name: str) -> float:
-        return sum(cum for (file, _, fn), (_, _, _, cum, _) in stats.items()
-                   if file_part in file and fn == name)
+        return sum(
+            cum
+            for (file, _, fn), (_, _, _, cum, _) in stats.items()
+            if file_part in file and fn == name
+        )
 
     split = {
         "env step (MuJoCo and wrappers)": cumulative("envs/__init__", "step"),
@@ -246,8 +268,12 @@ def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, floa
     from baselines.sac_twin_q import TwinQSACAgent
     from envs import FlatFloat32Env
 
-    seconds = {"env step (MuJoCo and wrappers)": 0.0, "policy action per env step": 0.0,
-               "replay add and sample": 0.0, "gradient steps": 0.0}
+    seconds = {
+        "env step (MuJoCo and wrappers)": 0.0,
+        "policy action per env step": 0.0,
+        "replay add and sample": 0.0,
+        "gradient steps": 0.0,
+    }
 
     def timed(owner: type, method: str, part: str, wait: bool = False):
         original = getattr(owner, method)
@@ -262,20 +288,28 @@ def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, floa
 
         return original, wrapper
 
-    patches = [(FlatFloat32Env, "step", "env step (MuJoCo and wrappers)", False),
-               (PolicyActor, "act", "policy action per env step", False),
-               (ReplayBuffer, "add", "replay add and sample", False),
-               (ReplayBuffer, "sample", "replay add and sample", False),
-               (SACAgent, "update", "gradient steps", True),
-               (TwinQSACAgent, "update", "gradient steps", True)]
+    patches = [
+        (FlatFloat32Env, "step", "env step (MuJoCo and wrappers)", False),
+        (PolicyActor, "act", "policy action per env step", False),
+        (ReplayBuffer, "add", "replay add and sample", False),
+        (ReplayBuffer, "sample", "replay add and sample", False),
+        (SACAgent, "update", "gradient steps", True),
+        (TwinQSACAgent, "update", "gradient steps", True),
+    ]
     originals = []
     for owner, method, part, wait in patches:
         original, wrapper = timed(owner, method, part, wait)
         originals.append((owner, method, original))
         setattr(owner, method, wrapper)
     algorithm = get_algorithm(algo)
-    ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
-                       eval_episodes=1, device=device)
+    ctx = TrainContext(
+        env_id=ENV_ID,
+        seed=0,
+        total_steps=steps,
+        eval_interval=10 * steps,
+        eval_episodes=1,
+        device=device,
+    )
     try:
         start = time.perf_counter()
         algorithm.train(ctx, algorithm.make_config({}))
@@ -287,16 +321,30 @@ def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, floa
     return {name: round(value / total, 3) for name, value in seconds.items()}
 
 
-def harness_run_steps_per_s(algo: str, steps: int, overrides: dict | None = None,
-                            demos=None, device: str = "cpu", cuda_graphs: bool = True) -> float:
+def harness_run_steps_per_s(
+    algo: str,
+    steps: int,
+    overrides: dict | None = None,
+    demos=None,
+    device: str = "cpu",
+    cuda_graphs: bool = True,
+) -> float:
     """Env steps per second of a whole training run (updates from step 1000 on)."""
     from baselines.common.context import TrainContext
     from baselines.registry import get_algorithm
 
     algorithm = get_algorithm(algo)
     config = algorithm.make_config(overrides or {})
-    ctx = TrainContext(env_id=ENV_ID, seed=0, total_steps=steps, eval_interval=10 * steps,
-                       eval_episodes=1, demos=demos, device=device, cuda_graphs=cuda_graphs)
+    ctx = TrainContext(
+        env_id=ENV_ID,
+        seed=0,
+        total_steps=steps,
+        eval_interval=10 * steps,
+        eval_episodes=1,
+        demos=demos,
+        device=device,
+        cuda_graphs=cuda_graphs,
+    )
     start = time.perf_counter()
     algorithm.train(ctx, config)
     return steps / (time.perf_counter() - start)
@@ -313,9 +361,11 @@ def hopper_demos(n_pairs: int):
     index = np.arange(n_pairs) % len(committed.observations)
     jitter = 0.0 if n_pairs <= len(committed.observations) else 0.01
     observations = committed.observations[index] + rng.normal(
-        scale=jitter, size=(n_pairs, committed.observations.shape[1]))
-    return Demonstrations(observations.astype(np.float32), committed.actions[index],
-                          {"expert_return_mean": 1e9})
+        scale=jitter, size=(n_pairs, committed.observations.shape[1])
+    )
+    return Demonstrations(
+        observations.astype(np.float32), committed.actions[index], {"expert_return_mean": 1e9}
+    )
 
 
 def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[str, float]:
@@ -352,9 +402,13 @@ def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[st
             guided += explorer.choose(state)[1]
         times["choose"].append(time.perf_counter() - start)
     act_us, choose_us = (1e6 * min(times[k]) / len(visited) for k in ("act", "choose"))
-    return {"index_build_s": build_s, "sac_act_us": act_us, "drl_eg_choose_us": choose_us,
-            "added_us_per_step": choose_us - act_us,
-            "guided_fraction": guided / (3 * len(visited))}
+    return {
+        "index_build_s": build_s,
+        "sac_act_us": act_us,
+        "drl_eg_choose_us": choose_us,
+        "added_us_per_step": choose_us - act_us,
+        "guided_fraction": guided / (3 * len(visited)),
+    }
 
 
 def sb3_sac_steps_per_s(steps: int, device: str = "cpu") -> float:
@@ -362,10 +416,22 @@ def sb3_sac_steps_per_s(steps: int, device: str = "cpu") -> float:
     from stable_baselines3 import SAC
 
     torch.set_num_threads(1)
-    model = SAC("MlpPolicy", gym.make(ENV_ID), learning_rate=3e-4, buffer_size=steps,
-                learning_starts=WARMUP, batch_size=256, tau=0.005, gamma=0.99, train_freq=1,
-                gradient_steps=1, policy_kwargs={"net_arch": [256, 256]}, seed=0,
-                device=device, verbose=0)
+    model = SAC(
+        "MlpPolicy",
+        gym.make(ENV_ID),
+        learning_rate=3e-4,
+        buffer_size=steps,
+        learning_starts=WARMUP,
+        batch_size=256,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        policy_kwargs={"net_arch": [256, 256]},
+        seed=0,
+        device=device,
+        verbose=0,
+    )
     start = time.perf_counter()
     model.learn(total_timesteps=steps)
     return steps / (time.perf_counter() - start)
@@ -376,8 +442,17 @@ def sb3_ppo_steps_per_s(steps: int) -> float:
     from stable_baselines3 import PPO
 
     torch.set_num_threads(1)
-    model = PPO("MlpPolicy", gym.make(ENV_ID), n_steps=2048, batch_size=64, n_epochs=10,
-                policy_kwargs={"net_arch": [64, 64]}, seed=0, device="cpu", verbose=0)
+    model = PPO(
+        "MlpPolicy",
+        gym.make(ENV_ID),
+        n_steps=2048,
+        batch_size=64,
+        n_epochs=10,
+        policy_kwargs={"net_arch": [64, 64]},
+        seed=0,
+        device="cpu",
+        verbose=0,
+    )
     start = time.perf_counter()
     model.learn(total_timesteps=steps)
     return steps / (time.perf_counter() - start)
@@ -394,6 +469,7 @@ def _start_process(devices) -> None:
     import stable_baselines3  # noqa: F401
 
     import baselines.sac_twin_q  # noqa: F401
+
     if _process_device == "cuda":
         torch.zeros(1, device="cuda").sum().item()
 
@@ -405,8 +481,9 @@ def _one_process(job: tuple[str, int]) -> float:
     return harness_run_steps_per_s(kind, steps, device=_process_device)
 
 
-def machine_steps_per_s(kind: str, steps: int, processes: int, runs: int,
-                        devices: list[str] | None = None) -> float:
+def machine_steps_per_s(
+    kind: str, steps: int, processes: int, runs: int, devices: list[str] | None = None
+) -> float:
     """Total env steps per second of a ``runs``-seed SAC job on ``processes`` processes, the
     k-th process on ``devices[k]`` (default: all on the CPU)."""
     context = mp.get_context("spawn")
@@ -440,37 +517,62 @@ def gpu_measurements(steps: int, repeats: int) -> tuple[dict[str, float], list[t
     twin_graphed = make_harness_update("sac-twin-q", "cuda", cuda_graphs=True)
     twin_eager = make_harness_update("sac-twin-q", "cuda", cuda_graphs=False)
     v_graphed = make_harness_update("sac", "cuda", cuda_graphs=True)
-    results.update(median_of(repeats, {
-        "gpu_twin_q_update_graphed_ms": lambda: 1e3 * seconds_per_call(twin_graphed, 500),
-        "gpu_twin_q_update_eager_ms": lambda: 1e3 * seconds_per_call(twin_eager, 500),
-        "gpu_v_sac_update_graphed_ms": lambda: 1e3 * seconds_per_call(v_graphed, 500)}))
+    results.update(
+        median_of(
+            repeats,
+            {
+                "gpu_twin_q_update_graphed_ms": lambda: 1e3 * seconds_per_call(twin_graphed, 500),
+                "gpu_twin_q_update_eager_ms": lambda: 1e3 * seconds_per_call(twin_eager, 500),
+                "gpu_v_sac_update_graphed_ms": lambda: 1e3 * seconds_per_call(v_graphed, 500),
+            },
+        )
+    )
     print(f"measuring runs of {steps} steps on the GPU and on one CPU core ...", flush=True)
     near = {"guide_threshold": 0.1}
-    results.update(median_of(repeats, {
-        "gpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s(
-            "sac-twin-q", steps, device="cuda"),
-        "gpu_harness_twin_q_eager_steps_per_s": lambda: harness_run_steps_per_s(
-            "sac-twin-q", steps, device="cuda", cuda_graphs=False),
-        "gpu_harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s(
-            "sac", steps, device="cuda"),
-        "gpu_drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
-            "drl-eg", steps, near, hopper_demos(1000), device="cuda"),
-        "gpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps, "cuda"),
-        "cpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s("sac-twin-q", steps),
-        "cpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps)}))
+    results.update(
+        median_of(
+            repeats,
+            {
+                "gpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s(
+                    "sac-twin-q", steps, device="cuda"
+                ),
+                "gpu_harness_twin_q_eager_steps_per_s": lambda: harness_run_steps_per_s(
+                    "sac-twin-q", steps, device="cuda", cuda_graphs=False
+                ),
+                "gpu_harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s(
+                    "sac", steps, device="cuda"
+                ),
+                "gpu_drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
+                    "drl-eg", steps, near, hopper_demos(1000), device="cuda"
+                ),
+                "gpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps, "cuda"),
+                "cpu_harness_twin_q_steps_per_s": lambda: harness_run_steps_per_s(
+                    "sac-twin-q", steps
+                ),
+                "cpu_sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps),
+            },
+        )
+    )
     runs = 2 * cores  # two rounds: workers that finish early take more runs
-    print(f"measuring the machine: {runs} seeds on {cores} processes; SB3 and the harness on "
-          "the CPU cores, and the harness with some of its processes on the GPU ...", flush=True)
+    print(
+        f"measuring the machine: {runs} seeds on {cores} processes; SB3 and the harness on "
+        "the CPU cores, and the harness with some of its processes on the GPU ...",
+        flush=True,
+    )
     results["gpu_machine_sb3_cpu_steps_per_s"] = machine_steps_per_s("sb3", steps, cores, runs)
     results["gpu_machine_harness_cpu_steps_per_s"] = machine_steps_per_s(
-        "sac-twin-q", steps, cores, runs)
+        "sac-twin-q", steps, cores, runs
+    )
     for on_gpu in GPU_WORKER_COUNTS:
         label = on_gpu or cores
         results[f"gpu_machine_harness_{label}_on_gpu_steps_per_s"] = machine_steps_per_s(
-            "sac-twin-q", steps, cores, runs, worker_devices("auto", cores, on_gpu))
-        print(f"  {label} on the GPU: "
-              f"{results[f'gpu_machine_harness_{label}_on_gpu_steps_per_s']:.0f} steps/s",
-              flush=True)
+            "sac-twin-q", steps, cores, runs, worker_devices("auto", cores, on_gpu)
+        )
+        print(
+            f"  {label} on the GPU: "
+            f"{results[f'gpu_machine_harness_{label}_on_gpu_steps_per_s']:.0f} steps/s",
+            flush=True,
+        )
     split = sac_time_split("sac-twin-q", steps, "cuda")
     print("\nwhere a twin-Q SAC run on the GPU spends its time (share of wall time):")
     for name, share in split.items():
@@ -478,31 +580,59 @@ def gpu_measurements(steps: int, repeats: int) -> tuple[dict[str, float], list[t
         results[f"gpu_twin_q_run_share {name}"] = share
     r = results
     rows = [
-        ("GPU: one twin-Q SAC run / one SB3 SAC run, both on the GPU",
-         r["gpu_harness_twin_q_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"], ">= 1.5"),
-        ("GPU: one twin-Q SAC run on the GPU / one SB3 SAC run on a core",
-         r["gpu_harness_twin_q_steps_per_s"] / r["cpu_sb3_sac_steps_per_s"], ">= 1.5"),
-        ("GPU: twin-Q run, graphed / eager", r["gpu_harness_twin_q_steps_per_s"]
-         / r["gpu_harness_twin_q_eager_steps_per_s"], "(what CUDA graphs buy)"),
-        ("GPU: twin-Q update, eager / graphed", r["gpu_twin_q_update_eager_ms"]
-         / r["gpu_twin_q_update_graphed_ms"], "(launch overhead removed)"),
-        ("GPU: twin-Q run on the GPU / on one core", r["gpu_harness_twin_q_steps_per_s"]
-         / r["cpu_harness_twin_q_steps_per_s"], ""),
-        ("GPU: paper V-SAC run / SB3 SAC run, both on the GPU",
-         r["gpu_harness_v_sac_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"], ""),
-        ("GPU: DRL-EG step time / V-SAC step time (1000 demos, T2 = 0.1)",
-         r["gpu_harness_v_sac_steps_per_s"] / r["gpu_drl_eg_1k_steps_per_s"],
-         "(whole runs; different trajectories)"),
-        (f"GPU machine, {runs} seeds: harness on {cores} cores / SB3 on {cores} cores",
-         r["gpu_machine_harness_cpu_steps_per_s"] / r["gpu_machine_sb3_cpu_steps_per_s"], ""),
+        (
+            "GPU: one twin-Q SAC run / one SB3 SAC run, both on the GPU",
+            r["gpu_harness_twin_q_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"],
+            ">= 1.5",
+        ),
+        (
+            "GPU: one twin-Q SAC run on the GPU / one SB3 SAC run on a core",
+            r["gpu_harness_twin_q_steps_per_s"] / r["cpu_sb3_sac_steps_per_s"],
+            ">= 1.5",
+        ),
+        (
+            "GPU: twin-Q run, graphed / eager",
+            r["gpu_harness_twin_q_steps_per_s"] / r["gpu_harness_twin_q_eager_steps_per_s"],
+            "(what CUDA graphs buy)",
+        ),
+        (
+            "GPU: twin-Q update, eager / graphed",
+            r["gpu_twin_q_update_eager_ms"] / r["gpu_twin_q_update_graphed_ms"],
+            "(launch overhead removed)",
+        ),
+        (
+            "GPU: twin-Q run on the GPU / on one core",
+            r["gpu_harness_twin_q_steps_per_s"] / r["cpu_harness_twin_q_steps_per_s"],
+            "",
+        ),
+        (
+            "GPU: paper V-SAC run / SB3 SAC run, both on the GPU",
+            r["gpu_harness_v_sac_steps_per_s"] / r["gpu_sb3_sac_steps_per_s"],
+            "",
+        ),
+        (
+            "GPU: DRL-EG step time / V-SAC step time (1000 demos, T2 = 0.1)",
+            r["gpu_harness_v_sac_steps_per_s"] / r["gpu_drl_eg_1k_steps_per_s"],
+            "(whole runs; different trajectories)",
+        ),
+        (
+            f"GPU machine, {runs} seeds: harness on {cores} cores / SB3 on {cores} cores",
+            r["gpu_machine_harness_cpu_steps_per_s"] / r["gpu_machine_sb3_cpu_steps_per_s"],
+            "",
+        ),
     ]
     for on_gpu in GPU_WORKER_COUNTS:
         label = on_gpu or cores
         mode = "the default, all" if on_gpu is None else f"--gpu-workers {on_gpu}"
-        rows.append((f"GPU machine, {runs} seeds: harness, {label} of {cores} processes on the "
-                     f"GPU ({mode}) / SB3 on {cores} cores",
-                     r[f"gpu_machine_harness_{label}_on_gpu_steps_per_s"]
-                     / r["gpu_machine_sb3_cpu_steps_per_s"], ">= 1.5"))
+        rows.append(
+            (
+                f"GPU machine, {runs} seeds: harness, {label} of {cores} processes on the "
+                f"GPU ({mode}) / SB3 on {cores} cores",
+                r[f"gpu_machine_harness_{label}_on_gpu_steps_per_s"]
+                / r["gpu_machine_sb3_cpu_steps_per_s"],
+                ">= 1.5",
+            )
+        )
     return results, rows
 
 
@@ -512,23 +642,43 @@ def print_table(rows: list[tuple]) -> None:
         print(f"{name:66} {value:9.3f}  {target}")
 
 
-def report(out: Path, command: str, steps: int, repeats: int, results: dict[str, float],
-           rows: list[tuple], **extra) -> None:
+def report(
+    out: Path,
+    command: str,
+    steps: int,
+    repeats: int,
+    results: dict[str, float],
+    rows: list[tuple],
+    **extra,
+) -> None:
     """Print the ratios and the raw measurements, and write them, with the machine, to ``out``."""
     print_table(rows)
     print("\nraw measurements:")
     for name, value in results.items():
         print(f"  {name:52} {value:12.3f}")
-    machine = {"platform": platform.platform(), "cpus": os.cpu_count() or 1,
-               "torch": torch.__version__}
+    machine = {
+        "platform": platform.platform(),
+        "cpus": os.cpu_count() or 1,
+        "torch": torch.__version__,
+    }
     if torch.cuda.is_available():
         machine["gpu"] = torch.cuda.get_device_name()
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
-        "machine": machine, "command": command, "hopper_steps_per_run": steps,
-        "repeats": repeats, "measurements": results,
-        "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows], **extra},
-        indent=2) + "\n")
+    out.write_text(
+        json.dumps(
+            {
+                "machine": machine,
+                "command": command,
+                "hopper_steps_per_run": steps,
+                "repeats": repeats,
+                "measurements": results,
+                "ratios": [{"name": n, "value": v, "target": t} for n, v, t in rows],
+                **extra,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
 
 
 def main_gpu(args: argparse.Namespace) -> None:
@@ -537,20 +687,34 @@ def main_gpu(args: argparse.Namespace) -> None:
     results, rows = gpu_measurements(args.steps, args.repeats)
     results["bench_wall_s"] = time.perf_counter() - began
     out = args.out.with_name("bench_gpu.json")
-    report(out, " ".join(["benchmarks/bench.py", *sys.argv[1:]]), args.steps, args.repeats,
-           results, rows)
+    report(
+        out,
+        " ".join(["benchmarks/bench.py", *sys.argv[1:]]),
+        args.steps,
+        args.repeats,
+        results,
+        rows,
+    )
     print(f"\nwritten: {out} ({results['bench_wall_s']:.0f} s)")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2500,
-                        help="env steps per SAC run (the first 1000 without updates)")
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="whole-run measurements are the median of this many")
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=2500,
+        help="env steps per SAC run (the first 1000 without updates)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="whole-run measurements are the median of this many"
+    )
     parser.add_argument("--out", type=Path, default=Path("reports/bench/bench.json"))
-    parser.add_argument("--gpu-only", action="store_true",
-                        help="measure only the GPU path (reports/bench/bench_gpu.json)")
+    parser.add_argument(
+        "--gpu-only",
+        action="store_true",
+        help="measure only the GPU path (reports/bench/bench_gpu.json)",
+    )
     args = parser.parse_args()
     if args.steps <= WARMUP or args.repeats < 1:
         parser.error(f"--steps must exceed {WARMUP} (the warm-up) and --repeats be >= 1")
@@ -570,25 +734,45 @@ def main() -> None:
     print("measuring the update floor and the harness's updates ...", flush=True)
     floor_update = make_floor_update()
     v_update, twin_update = make_harness_update("sac"), make_harness_update("sac-twin-q")
-    results.update(median_of(repeats, {
-        "floor_twin_q_update_ms": lambda: 1e3 * seconds_per_call(floor_update, 300),
-        "harness_twin_q_update_ms": lambda: 1e3 * seconds_per_call(twin_update, 300),
-        "harness_v_sac_update_ms": lambda: 1e3 * seconds_per_call(v_update, 300)}))
+    results.update(
+        median_of(
+            repeats,
+            {
+                "floor_twin_q_update_ms": lambda: 1e3 * seconds_per_call(floor_update, 300),
+                "harness_twin_q_update_ms": lambda: 1e3 * seconds_per_call(twin_update, 300),
+                "harness_v_sac_update_ms": lambda: 1e3 * seconds_per_call(v_update, 300),
+            },
+        )
+    )
     print("measuring the CPU's matrix-product rate and the updates' FLOPs ...", flush=True)
     results["gemm_256_gflops"] = gemm_gflops()
-    for name, update in (("floor", floor_update), ("harness_twin_q", twin_update),
-                         ("harness_v_sac", v_update)):
+    for name, update in (
+        ("floor", floor_update),
+        ("harness_twin_q", twin_update),
+        ("harness_v_sac", v_update),
+    ):
         results[f"{name}_update_mflop"] = flops_per_call(update) / 1e6
         # the time the update's products alone would take at the best rate measured above
-        results[f"{name}_update_flop_ms"] = (results[f"{name}_update_mflop"]
-                                             / results["gemm_256_gflops"])
+        results[f"{name}_update_flop_ms"] = (
+            results[f"{name}_update_mflop"] / results["gemm_256_gflops"]
+        )
     profile_rows = update_profile(twin_update)
-    print(f"measuring SAC runs (harness twin-Q, harness V-SAC, SB3; median of {repeats}) ...",
-          flush=True)
-    results.update(median_of(repeats, {
-        "harness_twin_q_sac_steps_per_s": lambda: harness_run_steps_per_s("sac-twin-q", steps),
-        "harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps),
-        "sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps)}))
+    print(
+        f"measuring SAC runs (harness twin-Q, harness V-SAC, SB3; median of {repeats}) ...",
+        flush=True,
+    )
+    results.update(
+        median_of(
+            repeats,
+            {
+                "harness_twin_q_sac_steps_per_s": lambda: harness_run_steps_per_s(
+                    "sac-twin-q", steps
+                ),
+                "harness_v_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps),
+                "sb3_sac_steps_per_s": lambda: sb3_sac_steps_per_s(steps),
+            },
+        )
+    )
     print("measuring DRL-EG guidance (1000 and 1M demonstrations) ...", flush=True)
     # T2 = 0.1: a realistic threshold (Hopper's demonstration spacing is ~0.1); always:
     # the guider answers every step, the index's worst case
@@ -597,32 +781,57 @@ def main() -> None:
             for key, value in guidance_cost(pairs, threshold).items():
                 results[f"guidance_{label}_{mode}_{key}"] = value
     near = {"guide_threshold": 0.1}
-    results.update(median_of(repeats, {
-        "drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
-            "drl-eg", steps, near, hopper_demos(1000)),
-        "drl_eg_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps)}))
+    results.update(
+        median_of(
+            repeats,
+            {
+                "drl_eg_1k_steps_per_s": lambda: harness_run_steps_per_s(
+                    "drl-eg", steps, near, hopper_demos(1000)
+                ),
+                "drl_eg_sac_steps_per_s": lambda: harness_run_steps_per_s("sac", steps),
+            },
+        )
+    )
     print("measuring PPO (harness, SB3) ...", flush=True)
-    results.update(median_of(repeats, {
-        "harness_ppo_steps_per_s": lambda: harness_run_steps_per_s("ppo", 4 * 2048),
-        "sb3_ppo_steps_per_s": lambda: sb3_ppo_steps_per_s(4 * 2048)}))
+    results.update(
+        median_of(
+            repeats,
+            {
+                "harness_ppo_steps_per_s": lambda: harness_run_steps_per_s("ppo", 4 * 2048),
+                "sb3_ppo_steps_per_s": lambda: sb3_ppo_steps_per_s(4 * 2048),
+            },
+        )
+    )
     ppo_split = ppo_time_split()
     sac_split = sac_time_split("sac-twin-q", steps)
     cores = os.cpu_count() or 1
     seeds = max(4, cores)
     print(f"measuring the machine: {seeds} seeds on {cores} processes ...", flush=True)
-    results.update(median_of(max(1, repeats - 1), {
-        "machine_harness_sac_steps_per_s": lambda: machine_steps_per_s(
-            "sac-twin-q", steps, cores, seeds),
-        "machine_sb3_sac_steps_per_s": lambda: machine_steps_per_s("sb3", steps, cores, seeds)}))
+    results.update(
+        median_of(
+            max(1, repeats - 1),
+            {
+                "machine_harness_sac_steps_per_s": lambda: machine_steps_per_s(
+                    "sac-twin-q", steps, cores, seeds
+                ),
+                "machine_sb3_sac_steps_per_s": lambda: machine_steps_per_s(
+                    "sb3", steps, cores, seeds
+                ),
+            },
+        )
+    )
 
     # the floor of a whole run: its updates at the floor's cost plus its raw env steps
-    floor_run_s = (update_steps * results["floor_twin_q_update_ms"] / 1e3
-                   + steps / results["raw_env_steps_per_s"])
+    floor_run_s = (
+        update_steps * results["floor_twin_q_update_ms"] / 1e3
+        + steps / results["raw_env_steps_per_s"]
+    )
     twin_run_s = steps / results["harness_twin_q_sac_steps_per_s"]
     results["floor_sac_run_steps_per_s"] = steps / floor_run_s
     # SB3's update cost, from its run time less the raw env time
-    sb3_update_s = (steps / results["sb3_sac_steps_per_s"]
-                    - steps / results["raw_env_steps_per_s"]) / update_steps
+    sb3_update_s = (
+        steps / results["sb3_sac_steps_per_s"] - steps / results["raw_env_steps_per_s"]
+    ) / update_steps
     results["sb3_sac_update_ms_estimated"] = 1e3 * sb3_update_s
     # guidance against the time of a whole SAC env step (its update included)
     sac_step_us = 1e6 / results["harness_v_sac_steps_per_s"]
@@ -634,45 +843,85 @@ def main() -> None:
         return (sac_step_us + added + build_us) / sac_step_us
 
     rows = [
-        ("one twin-Q SAC run / one SB3 SAC run", results["harness_twin_q_sac_steps_per_s"]
-         / results["sb3_sac_steps_per_s"], ">= 1.5"),
-        ("one paper V-SAC run / one SB3 SAC run", results["harness_v_sac_steps_per_s"]
-         / results["sb3_sac_steps_per_s"], "(five networks against SB3's four)"),
-        (f"machine, {seeds}-seed job on {cores} processes: harness / SB3",
-         results["machine_harness_sac_steps_per_s"] / results["machine_sb3_sac_steps_per_s"],
-         ">= 1.5"),
-        ("twin-Q SAC run time / floor (updates + raw env steps)", twin_run_s / floor_run_s,
-         "<= 1.3"),
-        ("twin-Q SAC update / floor update", results["harness_twin_q_update_ms"]
-         / results["floor_twin_q_update_ms"], "(same math)"),
-        ("twin-Q SAC update / its FLOPs at the measured GEMM rate",
-         results["harness_twin_q_update_ms"] / results["harness_twin_q_update_flop_ms"],
-         "(>= 1 by law)"),
-        ("SB3 SAC update / its FLOPs at the measured GEMM rate",
-         results["sb3_sac_update_ms_estimated"] / results["floor_update_flop_ms"],
-         "(SB3's distance from the hardware)"),
-        ("PPO / SB3 PPO", results["harness_ppo_steps_per_s"] / results["sb3_ppo_steps_per_s"],
-         ">= 1.5"),
+        (
+            "one twin-Q SAC run / one SB3 SAC run",
+            results["harness_twin_q_sac_steps_per_s"] / results["sb3_sac_steps_per_s"],
+            ">= 1.5",
+        ),
+        (
+            "one paper V-SAC run / one SB3 SAC run",
+            results["harness_v_sac_steps_per_s"] / results["sb3_sac_steps_per_s"],
+            "(five networks against SB3's four)",
+        ),
+        (
+            f"machine, {seeds}-seed job on {cores} processes: harness / SB3",
+            results["machine_harness_sac_steps_per_s"] / results["machine_sb3_sac_steps_per_s"],
+            ">= 1.5",
+        ),
+        (
+            "twin-Q SAC run time / floor (updates + raw env steps)",
+            twin_run_s / floor_run_s,
+            "<= 1.3",
+        ),
+        (
+            "twin-Q SAC update / floor update",
+            results["harness_twin_q_update_ms"] / results["floor_twin_q_update_ms"],
+            "(same math)",
+        ),
+        (
+            "twin-Q SAC update / its FLOPs at the measured GEMM rate",
+            results["harness_twin_q_update_ms"] / results["harness_twin_q_update_flop_ms"],
+            "(>= 1 by law)",
+        ),
+        (
+            "SB3 SAC update / its FLOPs at the measured GEMM rate",
+            results["sb3_sac_update_ms_estimated"] / results["floor_update_flop_ms"],
+            "(SB3's distance from the hardware)",
+        ),
+        (
+            "PPO / SB3 PPO",
+            results["harness_ppo_steps_per_s"] / results["sb3_ppo_steps_per_s"],
+            ">= 1.5",
+        ),
         ("DRL-EG step / SAC step, 1000 demos, T2 = 0.1", guidance_ratio("1k", "near"), "<= 1.05"),
         ("DRL-EG step / SAC step, 1M demos, T2 = 0.1", guidance_ratio("1m", "near"), "<= 1.05"),
-        ("DRL-EG step / SAC step, 1000 demos, guided always", guidance_ratio("1k", "always"),
-         "(guided steps skip the policy)"),
-        ("DRL-EG step / SAC step, 1M demos, guided always", guidance_ratio("1m", "always"),
-         "(the index's worst case)"),
-        ("whole DRL-EG run time / SAC run, 1000 demos, T2 = 0.1",
-         results["drl_eg_sac_steps_per_s"] / results["drl_eg_1k_steps_per_s"],
-         "(different trajectories; noisy)"),
-        ("adapter time per step / raw env", results["raw_env_steps_per_s"]
-         / results["adapter_env_steps_per_s"], "<= 1.05"),
+        (
+            "DRL-EG step / SAC step, 1000 demos, guided always",
+            guidance_ratio("1k", "always"),
+            "(guided steps skip the policy)",
+        ),
+        (
+            "DRL-EG step / SAC step, 1M demos, guided always",
+            guidance_ratio("1m", "always"),
+            "(the index's worst case)",
+        ),
+        (
+            "whole DRL-EG run time / SAC run, 1000 demos, T2 = 0.1",
+            results["drl_eg_sac_steps_per_s"] / results["drl_eg_1k_steps_per_s"],
+            "(different trajectories; noisy)",
+        ),
+        (
+            "adapter time per step / raw env",
+            results["raw_env_steps_per_s"] / results["adapter_env_steps_per_s"],
+            "<= 1.05",
+        ),
     ]
     if torch.cuda.is_available():  # the GPU path, when there is one, beside the CPU's
         gpu_results, gpu_rows = gpu_measurements(steps, repeats)
         results.update(gpu_results)
         rows += gpu_rows
     results["bench_wall_s"] = time.perf_counter() - began
-    report(args.out, "nox -s bench", steps, repeats, results, rows,
-           twin_q_update_profile=profile_rows, twin_q_run_time_split=sac_split,
-           ppo_time_split=ppo_split)
+    report(
+        args.out,
+        "nox -s bench",
+        steps,
+        repeats,
+        results,
+        rows,
+        twin_q_update_profile=profile_rows,
+        twin_q_run_time_split=sac_split,
+        ppo_time_split=ppo_split,
+    )
     print("\nwhere the harness's twin-Q SAC update spends its time (self CPU time):")
     for row in profile_rows:
         print(f"  {row['op']:40} {100 * row['share']:5.1f}%  {row['calls_per_update']:5.1f} calls")

@@ -21,8 +21,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.batched import (BatchContext, StackedExplorer, run_stacked_off_policy,  # noqa: E402
-                               stacked_agent)
+from baselines.batched import BatchContext, StackedExplorer, run_stacked_off_policy, stacked_agent  # noqa: E402
 from baselines.common.context import TrainContext  # noqa: E402
 from baselines.registry import get_algorithm  # noqa: E402
 
@@ -32,21 +31,35 @@ SEEDS, STEPS, INTERVAL, EPISODES = (0, 1, 2), 50_000, 5_000, 5
 def train(precision: str) -> dict:
     torch.set_num_threads(1)
     curves: dict[int, list] = {seed: [] for seed in SEEDS}
-    contexts = [TrainContext("Hopper-v5", seed, STEPS, INTERVAL, EPISODES,
-                             on_eval=lambda p, s=seed: curves[s].append(p)) for seed in SEEDS]
+    contexts = [
+        TrainContext(
+            "Hopper-v5",
+            seed,
+            STEPS,
+            INTERVAL,
+            EPISODES,
+            on_eval=lambda p, s=seed: curves[s].append(p),
+        )
+        for seed in SEEDS
+    ]
     bctx = BatchContext(contexts)
     config = get_algorithm("sac").make_config({})
     agent = stacked_agent(bctx, [config] * len(SEEDS), twin_q=False)
     agent.cpu_autocast = torch.bfloat16 if precision == "bf16" else None
     started = time.time()
     run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
-    return {"precision": precision, "wall_s": round(time.time() - started, 1),
-            "curves": {seed: [[p.step, p.mean_return] for p in points]
-                       for seed, points in curves.items()}}
+    return {
+        "precision": precision,
+        "wall_s": round(time.time() - started, 1),
+        "curves": {
+            seed: [[p.step, p.mean_return] for p in points] for seed, points in curves.items()
+        },
+    }
 
 
-def band(curves: np.ndarray, rng: np.random.Generator, draws: int = 10_000
-         ) -> tuple[np.ndarray, np.ndarray]:
+def band(
+    curves: np.ndarray, rng: np.random.Generator, draws: int = 10_000
+) -> tuple[np.ndarray, np.ndarray]:
     """95% bootstrap band of the mean over seeds (rows), at every step (columns)."""
     picks = rng.integers(0, len(curves), size=(draws, len(curves)))
     means = curves[picks].mean(axis=1)
@@ -55,17 +68,24 @@ def band(curves: np.ndarray, rng: np.random.Generator, draws: int = 10_000
 
 def compare(fp32_path: str, bf16_path: str) -> dict:
     fp32, bf16 = (json.loads(Path(p).read_text()) for p in (fp32_path, bf16_path))
-    as_array = lambda r: np.array([[v for _, v in c] for c in r["curves"].values()])
+
+    def as_array(r):
+        return np.array([[v for _, v in c] for c in r["curves"].values()])
+
     a, b = as_array(fp32), as_array(bf16)
     low, high = band(a, np.random.default_rng(0))
     mean_b = b.mean(axis=0)
     inside = (mean_b >= low) & (mean_b <= high)
     steps = [s for s, _ in next(iter(fp32["curves"].values()))]
-    return {"steps": steps, "fp32 mean": a.mean(0).round(1).tolist(),
-            "fp32 band": [low.round(1).tolist(), high.round(1).tolist()],
-            "bf16 mean": mean_b.round(1).tolist(), "inside at every point": bool(inside.all()),
-            "points inside": f"{int(inside.sum())}/{len(inside)}",
-            "wall s fp32, bf16": [fp32["wall_s"], bf16["wall_s"]]}
+    return {
+        "steps": steps,
+        "fp32 mean": a.mean(0).round(1).tolist(),
+        "fp32 band": [low.round(1).tolist(), high.round(1).tolist()],
+        "bf16 mean": mean_b.round(1).tolist(),
+        "inside at every point": bool(inside.all()),
+        "points inside": f"{int(inside.sum())}/{len(inside)}",
+        "wall s fp32, bf16": [fp32["wall_s"], bf16["wall_s"]],
+    }
 
 
 if __name__ == "__main__":

@@ -25,18 +25,30 @@ from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig  # noqa: E402
 
 def step_agreement(twin_q: bool) -> float:
     """Largest |difference| of the losses and weights after 3 steps, CUDA against CPU."""
-    cfg_cls, agent_cls, stacked = ((TwinQSACConfig, TwinQSACAgent, StackedTwinQAgent) if twin_q
-                                   else (SACConfig, SACAgent, StackedSACAgent))
+    cfg_cls, agent_cls, stacked = (
+        (TwinQSACConfig, TwinQSACAgent, StackedTwinQAgent)
+        if twin_q
+        else (SACConfig, SACAgent, StackedSACAgent)
+    )
     cfg = cfg_cls()
-    agents = lambda: [agent_cls(11, 3, -np.ones(3), np.ones(3), cfg, seed=s, cuda_graphs=False)
-                      for s in range(4)]
+
+    def agents():
+        return [
+            agent_cls(11, 3, -np.ones(3), np.ones(3), cfg, seed=s, cuda_graphs=False)
+            for s in range(4)
+        ]
+
     cpu, gpu = stacked(agents(), cfg, "cpu"), stacked(agents(), cfg, "cuda", cuda_graphs=False)
     g = torch.Generator().manual_seed(0)
     worst = 0.0
     for _ in range(3):
-        batch = Batch(torch.randn(4, 256, 11, generator=g), torch.rand(4, 256, 3, generator=g),
-                      torch.randn(4, 256, generator=g), torch.randn(4, 256, 11, generator=g),
-                      (torch.rand(4, 256, generator=g) < 0.1).float())
+        batch = Batch(
+            torch.randn(4, 256, 11, generator=g),
+            torch.rand(4, 256, 3, generator=g),
+            torch.randn(4, 256, generator=g),
+            torch.randn(4, 256, 11, generator=g),
+            (torch.rand(4, 256, generator=g) < 0.1).float(),
+        )
         noise = torch.randn(4, 256, 3, generator=g)
         noise = (noise, torch.randn(4, 256, 3, generator=g)) if twin_q else noise
         on_gpu = Batch(*[t.cuda() for t in vars(batch).values()])
@@ -54,22 +66,29 @@ def batch_through_runner(out: Path) -> dict:
 
     store = Path(tempfile.mkdtemp())
     hyper = {"learning_starts": 200}
-    members = [prepare(RunSpec("drl-eg", "Hopper-v5", s, 1500, 500, 2,
-                               {**hyper, "guide_threshold": 0.5})) for s in range(3)]
-    outcome = execute_batch(members, store, device="cuda", checkpoint_interval=400,
-                            env_workers=2)
-    return {"runs": [r.path.name for r in outcome.runs], "failed": outcome.failed,
-            "final_returns": [r.final_return for r in outcome.runs],
-            "provenance_batch": outcome.runs[0].provenance.get("batch"),
-            "guided_fraction": [float(r.curve["guided_fraction"].iloc[-1]) for r in outcome.runs]}
+    members = [
+        prepare(RunSpec("drl-eg", "Hopper-v5", s, 1500, 500, 2, {**hyper, "guide_threshold": 0.5}))
+        for s in range(3)
+    ]
+    outcome = execute_batch(members, store, device="cuda", checkpoint_interval=400, env_workers=2)
+    return {
+        "runs": [r.path.name for r in outcome.runs],
+        "failed": outcome.failed,
+        "final_returns": [r.final_return for r in outcome.runs],
+        "provenance_batch": outcome.runs[0].provenance.get("batch"),
+        "guided_fraction": [float(r.curve["guided_fraction"].iloc[-1]) for r in outcome.runs],
+    }
 
 
 if __name__ == "__main__":
     out = Path(sys.argv[1])
     out.mkdir(parents=True, exist_ok=True)
-    results = {"gpu": torch.cuda.get_device_name(), "torch": torch.__version__,
-               "sac step |cuda - cpu| max": step_agreement(False),
-               "twin-q step |cuda - cpu| max": step_agreement(True)}
+    results = {
+        "gpu": torch.cuda.get_device_name(),
+        "torch": torch.__version__,
+        "sac step |cuda - cpu| max": step_agreement(False),
+        "twin-q step |cuda - cpu| max": step_agreement(True),
+    }
     print(json.dumps(results), flush=True)
     results["runner"] = batch_through_runner(out)
     print(json.dumps(results), flush=True)

@@ -44,11 +44,21 @@ def guider_episodes(env_id: str, episodes: int, noise_std: float) -> dict:
             obs, reward, terminated, truncated, _ = env.step(action)
             total += float(reward)
             done = terminated or truncated
-        rows.append({"return": total, "length": len(distances),
-                     "median_distance": float(np.median(distances))})
+        rows.append(
+            {
+                "return": total,
+                "length": len(distances),
+                "median_distance": float(np.median(distances)),
+            }
+        )
     env.close()
-    return {"env_id": env_id, "demo_return": float(demos.mean_return), "noise_std": noise_std,
-            "spacing": demo_state_spacing(states), "episodes": rows}
+    return {
+        "env_id": env_id,
+        "demo_return": float(demos.mean_return),
+        "noise_std": noise_std,
+        "spacing": demo_state_spacing(states),
+        "episodes": rows,
+    }
 
 
 def main() -> None:
@@ -61,8 +71,13 @@ def main() -> None:
     results = [guider_episodes(env_id, args.episodes, args.noise_std) for env_id in args.envs]
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     for r in results:
-        print(r["env_id"], "demonstrations", round(r["demo_return"]), "guider alone",
-              [(round(e["return"]), e["length"]) for e in r["episodes"]])
+        print(
+            r["env_id"],
+            "demonstrations",
+            round(r["demo_return"]),
+            "guider alone",
+            [(round(e["return"]), e["length"]) for e in r["episodes"]],
+        )
 
 
 if __name__ == "__main__":

@@ -23,14 +23,16 @@ def batched_mlp(members: int, sizes: list[int]) -> tuple[list[torch.Tensor], lis
     """Weights (members, in, out) and biases (members, 1, out) of ``members`` MLPs."""
     weights, biases = [], []
     for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
-        weights.append(torch.nn.Parameter(torch.randn(members, fan_in, fan_out)
-                                          / math.sqrt(fan_in)))
+        weights.append(
+            torch.nn.Parameter(torch.randn(members, fan_in, fan_out) / math.sqrt(fan_in))
+        )
         biases.append(torch.nn.Parameter(torch.zeros(members, 1, fan_out)))
     return weights, biases
 
 
-def forward(weights: list[torch.Tensor], biases: list[torch.Tensor], x: torch.Tensor
-            ) -> torch.Tensor:
+def forward(
+    weights: list[torch.Tensor], biases: list[torch.Tensor], x: torch.Tensor
+) -> torch.Tensor:
     for k, (weight, bias) in enumerate(zip(weights, biases)):
         x = torch.baddbmm(bias, x, weight)
         if k < len(weights) - 1:
@@ -56,14 +58,16 @@ def make_update(seeds: int):
         log_std = log_std.clamp(-20, 2)
         noise = torch.randn_like(mean)
         pre_tanh = mean + log_std.exp() * noise
-        log_prob = (-0.5 * noise.pow(2) - log_std).sum(-1, keepdim=True) \
-            - (2 * (math.log(2) - pre_tanh - F.softplus(-2 * pre_tanh))).sum(-1, keepdim=True)
+        log_prob = (-0.5 * noise.pow(2) - log_std).sum(-1, keepdim=True) - (
+            2 * (math.log(2) - pre_tanh - F.softplus(-2 * pre_tanh))
+        ).sum(-1, keepdim=True)
         return torch.tanh(pre_tanh), log_prob
 
     def q_values(weights, biases, states, acts) -> torch.Tensor:
         pairs = torch.cat([states, acts], -1).unsqueeze(1).expand(-1, 2, -1, -1)
         return forward(weights, biases, pairs.reshape(2 * seeds, BATCH, -1)).view(
-            seeds, 2, BATCH, 1)
+            seeds, 2, BATCH, 1
+        )
 
     def update() -> None:
         alpha = log_alpha.detach().exp()
@@ -71,8 +75,13 @@ def make_update(seeds: int):
             next_actions, next_log_prob = sample(next_obs)
             next_q = q_values(target_w, target_b, next_obs, next_actions).min(1).values
             y = rewards + 0.99 * not_done * (next_q - alpha * next_log_prob)
-        q_loss = 0.5 * (q_values(critic_w, critic_b, obs, actions)
-                        - y.unsqueeze(1)).pow(2).mean((2, 3)).sum()
+        q_loss = (
+            0.5
+            * (q_values(critic_w, critic_b, obs, actions) - y.unsqueeze(1))
+            .pow(2)
+            .mean((2, 3))
+            .sum()
+        )
         critic_opt.zero_grad()
         q_loss.backward()
         critic_opt.step()

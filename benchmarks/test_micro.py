@@ -32,8 +32,9 @@ def _buffer() -> ReplayBuffer:
     buffer = ReplayBuffer(OBS, ACT, 10_000)
     rng = np.random.default_rng(0)
     for _ in range(10_000):
-        buffer.add(rng.normal(size=OBS), rng.uniform(-1, 1, ACT), rng.normal(),
-                   rng.normal(size=OBS), False)
+        buffer.add(
+            rng.normal(size=OBS), rng.uniform(-1, 1, ACT), rng.normal(), rng.normal(size=OBS), False
+        )
     return buffer
 
 
@@ -48,15 +49,21 @@ def test_gradient_step(benchmark, algo):
 @pytest.mark.parametrize("members", [1, 4])
 @pytest.mark.parametrize("algo", ["sac", "sac-twin-q"])
 def test_batched_gradient_step(benchmark, algo, members):
-    cls, stacked, cfg = ((SACAgent, StackedSACAgent, SACConfig()) if algo == "sac" else
-                         (TwinQSACAgent, StackedTwinQAgent, TwinQSACConfig()))
+    cls, stacked, cfg = (
+        (SACAgent, StackedSACAgent, SACConfig())
+        if algo == "sac"
+        else (TwinQSACAgent, StackedTwinQAgent, TwinQSACConfig())
+    )
     agents = [cls(OBS, ACT, -np.ones(ACT), np.ones(ACT), cfg, seed=s) for s in range(members)]
     agent = stacked(agents, cfg, "cpu")
     g = torch.Generator().manual_seed(0)
-    batch = Batch(torch.randn(members, ROWS, OBS, generator=g),
-                  torch.rand(members, ROWS, ACT, generator=g),
-                  torch.randn(members, ROWS, generator=g),
-                  torch.randn(members, ROWS, OBS, generator=g), torch.zeros(members, ROWS))
+    batch = Batch(
+        torch.randn(members, ROWS, OBS, generator=g),
+        torch.rand(members, ROWS, ACT, generator=g),
+        torch.randn(members, ROWS, generator=g),
+        torch.randn(members, ROWS, OBS, generator=g),
+        torch.zeros(members, ROWS),
+    )
     benchmark(lambda: agent._gradient_step(batch, agent._cpu_noise()))
 
 

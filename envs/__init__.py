@@ -36,8 +36,17 @@ class EnvSpec:
 ENV_SPECS: dict[str, EnvSpec] = {
     spec.env_id: spec
     for spec in [
-        EnvSpec("MountainCarContinuous-v0", "classic", 2, 1, 999, "sparse",
-                "MountainCarContinuous-v0", 2, 1),
+        EnvSpec(
+            "MountainCarContinuous-v0",
+            "classic",
+            2,
+            1,
+            999,
+            "sparse",
+            "MountainCarContinuous-v0",
+            2,
+            1,
+        ),
         EnvSpec("Hopper-v5", "mujoco", 11, 3, 1000, "dense", "Hopper-v2", 11, 3),
         EnvSpec("Walker2d-v5", "mujoco", 17, 6, 1000, "dense", "Walker2d-v2", 17, 6),
         EnvSpec("HalfCheetah-v5", "mujoco", 17, 6, 1000, "dense", "HalfCheetah-v2", 17, 6),
@@ -87,7 +96,8 @@ class FlatFloat32Env(gym.Wrapper, gym.utils.RecordConstructorArgs):
         assert isinstance(inner_act, gym.spaces.Box), "only continuous-action envs are supported"
         self._inner_act_dtype = inner_act.dtype
         self.action_space = gym.spaces.Box(
-            low=inner_act.low.astype(np.float32), high=inner_act.high.astype(np.float32),
+            low=inner_act.low.astype(np.float32),
+            high=inner_act.high.astype(np.float32),
             dtype=np.float32,
         )
 

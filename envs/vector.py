@@ -59,9 +59,11 @@ class _Slot:
         return obs, reward, terminated, truncated
 
     def snapshot(self) -> dict[str, Any]:
-        return {"rng": copy.deepcopy(self.env.unwrapped.np_random),
-                "episode_start": copy.deepcopy(self.episode_start),
-                "actions": [action.copy() for action in self.actions]}
+        return {
+            "rng": copy.deepcopy(self.env.unwrapped.np_random),
+            "episode_start": copy.deepcopy(self.episode_start),
+            "actions": [action.copy() for action in self.actions],
+        }
 
     def restore(self, state: dict[str, Any]) -> np.ndarray | None:
         """Back to ``state``; the observation of the episode in progress, if one was."""
@@ -91,8 +93,9 @@ class _Slice:
                 out[i] = slot.reset(seeds[i])
         return out
 
-    def step(self, actions: np.ndarray, active: np.ndarray, reset_done: np.ndarray
-             ) -> tuple[np.ndarray, ...]:
+    def step(
+        self, actions: np.ndarray, active: np.ndarray, reset_done: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
         n, dim = len(self.slots), self.slots[0].obs_dim
         next_obs = np.zeros((n, dim), dtype=np.float32)
         obs = np.zeros((n, dim), dtype=np.float32)
@@ -158,8 +161,9 @@ class EnvBatch:
             ctx = mp.get_context("spawn")  # no inherited torch or CUDA state in the workers
             for start, stop in self._ranges:
                 parent, child = ctx.Pipe()
-                proc = ctx.Process(target=_serve, args=(child, env_id, list(seeds[start:stop])),
-                                   daemon=True)
+                proc = ctx.Process(
+                    target=_serve, args=(child, env_id, list(seeds[start:stop])), daemon=True
+                )
                 proc.start()
                 self._conns.append(parent)
                 self._procs.append(proc)
@@ -188,21 +192,27 @@ class EnvBatch:
             return np.concatenate(parts)
         return [item for part in parts for item in part]
 
-    def reset(self, which: np.ndarray | None = None, seeds: list[int | None] | None = None
-              ) -> np.ndarray:
+    def reset(
+        self, which: np.ndarray | None = None, seeds: list[int | None] | None = None
+    ) -> np.ndarray:
         """Reset the envs in ``which`` (default all), with ``seeds`` where given; rows of the
         others are zero."""
         which = np.ones(self.n, dtype=bool) if which is None else np.asarray(which, dtype=bool)
         return self._call("reset", [which, list(seeds) if seeds is not None else [None] * self.n])
 
-    def step(self, actions: np.ndarray, active: np.ndarray | None = None,
-             reset_done: np.ndarray | None = None) -> StepResult:
+    def step(
+        self,
+        actions: np.ndarray,
+        active: np.ndarray | None = None,
+        reset_done: np.ndarray | None = None,
+    ) -> StepResult:
         """Step the ``active`` envs (default all); those in ``reset_done`` (default: the
         active ones) that end an episode are reset at once."""
         active = np.ones(self.n, dtype=bool) if active is None else np.asarray(active, dtype=bool)
         reset_done = active if reset_done is None else np.asarray(reset_done, dtype=bool)
-        return StepResult(*self._call("step", [np.asarray(actions, dtype=np.float32), active,
-                                               reset_done]))
+        return StepResult(
+            *self._call("step", [np.asarray(actions, dtype=np.float32), active, reset_done])
+        )
 
     def snapshot(self) -> list[dict[str, Any]]:
         """Per env: its random state and how its current episode began (for a checkpoint)."""

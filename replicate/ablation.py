@@ -26,12 +26,22 @@ from typing import Any
 
 import numpy as np
 
-from replicate.errors import HarnessError
 from replicate import experiments
-from replicate.experiments import (ALWAYS_GUIDE, DEFAULT_GUIDE_NOISE_STD, SPACING_MULTIPLES,
-                                   T2_RULE_SETTINGS, GridOutcome, Profile, algorithm_overrides,
-                                   drl_eg_env_defaults, get_profile, report_dir, run_grid,
-                                   stored_runs)
+from replicate.errors import HarnessError
+from replicate.experiments import (
+    ALWAYS_GUIDE,
+    DEFAULT_GUIDE_NOISE_STD,
+    SPACING_MULTIPLES,
+    T2_RULE_SETTINGS,
+    GridOutcome,
+    Profile,
+    algorithm_overrides,
+    drl_eg_env_defaults,
+    get_profile,
+    report_dir,
+    run_grid,
+    stored_runs,
+)
 from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec
@@ -45,8 +55,12 @@ THRESHOLDS: dict[str, list[float]] = {  # MountainCar's grid, absolute values
     "reduced": [0.0, 0.01, 0.05, 0.2, ALWAYS],
     "paper": [0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, ALWAYS],
 }
-SIGMAS: dict[str, list[float]] = {"smoke": [0.1], "quick": [0.1], "reduced": [0.1],
-                                  "paper": [0.05, 0.1, 0.3]}
+SIGMAS: dict[str, list[float]] = {
+    "smoke": [0.1],
+    "quick": [0.1],
+    "reduced": [0.1],
+    "paper": [0.05, 0.1, 0.3],
+}
 ABLATION_ENV = "MountainCarContinuous-v0"  # where guidance decides the outcome (claim 1)
 # On MuJoCo T2 is swept in multiples of the env's default, the median spacing of its
 # demonstration states (which admits about 0.5% of an untrained Ant's states), plus always,
@@ -62,7 +76,8 @@ T2_RULE_CRITERION = (
     "that of uniformly random actions); averaged over the 3 seeds, then over Ant-v5 and "
     "Walker2d-v5 with equal weight. The MuJoCo rule is the setting with the largest mean "
     "gain, a tie going to the smaller T2, whatever the sign of that gain; it is chosen only "
-    "when every setting has its 3 seeds on both envs.")
+    "when every setting has its 3 seeds on both envs."
+)
 
 
 def threshold_spacing(env_id: str) -> float | None:
@@ -80,8 +95,9 @@ def default_thresholds(profile: str, env_id: str) -> list[float]:
     return [m * spacing for m in SPACING_MULTIPLES] + [ALWAYS]
 
 
-def admitted_share(env_id: str, thresholds: list[float], episodes: int = 5, seed: int = 0,
-                   max_states: int = 5000) -> list[float]:
+def admitted_share(
+    env_id: str, thresholds: list[float], episodes: int = 5, seed: int = 0, max_states: int = 5000
+) -> list[float]:
     """For each T2, the share of the states that uniformly random actions visit (``episodes``
     seeded episodes, at most ``max_states`` states) lying within T2 of a demonstration state:
     how much an untrained agent would be guided, before any training."""
@@ -103,7 +119,8 @@ def admitted_share(env_id: str, thresholds: list[float], episodes: int = 5, seed
             done = terminated or truncated
     env.close()
     distances, _ = cKDTree(demos.observations.astype(np.float64)).query(
-        np.asarray(states, dtype=np.float64))
+        np.asarray(states, dtype=np.float64)
+    )
     return [float(np.mean(distances <= t)) if t > 0 else 0.0 for t in thresholds]
 
 
@@ -113,6 +130,8 @@ def ablation_report_name(env_id: str) -> str:
     if env_id == ABLATION_ENV:
         return "ablate-threshold"
     return "ablate-threshold-" + env_id.split("/")[-1].split("-v")[0].lower()
+
+
 REPORT_SEED = 20_260_102
 
 
@@ -135,19 +154,40 @@ def threshold_label(threshold: float, spacing: float | None = None) -> str:
     return f"{threshold:g}"
 
 
-def ablation_specs(profile: Profile, env_id: str, threshold: float, sigma: float,
-                   seeds: int) -> list[RunSpec]:
+def ablation_specs(
+    profile: Profile, env_id: str, threshold: float, sigma: float, seeds: int
+) -> list[RunSpec]:
     hyper = algorithm_overrides("drl-eg", profile.overrides)
     hyper.update(drl_eg_env_defaults(env_id))
     hyper.update(guide_threshold=float(threshold), guide_noise_std=float(sigma))
-    return [RunSpec("drl-eg", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
-                    profile.eval_episodes, hyper) for seed in range(seeds)]
+    return [
+        RunSpec(
+            "drl-eg",
+            env_id,
+            seed,
+            profile.steps[env_id],
+            profile.eval_interval[env_id],
+            profile.eval_episodes,
+            hyper,
+        )
+        for seed in range(seeds)
+    ]
 
 
 def sac_specs(profile: Profile, env_id: str, seeds: int) -> list[RunSpec]:
     hyper = algorithm_overrides("sac", profile.overrides)
-    return [RunSpec("sac", env_id, seed, profile.steps[env_id], profile.eval_interval[env_id],
-                    profile.eval_episodes, hyper) for seed in range(seeds)]
+    return [
+        RunSpec(
+            "sac",
+            env_id,
+            seed,
+            profile.steps[env_id],
+            profile.eval_interval[env_id],
+            profile.eval_episodes,
+            hyper,
+        )
+        for seed in range(seeds)
+    ]
 
 
 def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, list[float]]]:
@@ -162,26 +202,35 @@ def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, 
     for env_id in MUJOCO_ABLATION_ENVS:
         if env_id not in chosen.steps or not default_demo_path(env_id).is_file():
             continue
-        sac = {r.spec["seed"]: r for r in stored_runs(
-            sac_specs(chosen, env_id, MUJOCO_ABLATION_SEEDS), store)}
+        sac = {
+            r.spec["seed"]: r
+            for r in stored_runs(sac_specs(chosen, env_id, MUJOCO_ABLATION_SEEDS), store)
+        }
         if not sac:
             continue
         scale = load_demos(default_demo_path(env_id), env_id).mean_return - random_return(env_id)
         for setting, threshold in zip(T2_RULE_SETTINGS, default_thresholds(profile, env_id)):
-            runs = stored_runs(ablation_specs(chosen, env_id, threshold,
-                                              DEFAULT_GUIDE_NOISE_STD, MUJOCO_ABLATION_SEEDS),
-                               store)
+            runs = stored_runs(
+                ablation_specs(
+                    chosen, env_id, threshold, DEFAULT_GUIDE_NOISE_STD, MUJOCO_ABLATION_SEEDS
+                ),
+                store,
+            )
             paired = sorted((r.spec["seed"], r) for r in runs if r.spec["seed"] in sac)
             if paired:
                 gains[setting][env_id] = [
                     (area_under_curve(r) - area_under_curve(sac[seed])) / scale
-                    for seed, r in paired]
+                    for seed, r in paired
+                ]
     return gains
 
 
-def choose_t2_rule(gains: dict[str, dict[str, list[float]]], rng: np.random.Generator,
-                   envs: tuple[str, ...] = MUJOCO_ABLATION_ENVS,
-                   seeds: int = MUJOCO_ABLATION_SEEDS) -> dict[str, Any]:
+def choose_t2_rule(
+    gains: dict[str, dict[str, list[float]]],
+    rng: np.random.Generator,
+    envs: tuple[str, ...] = MUJOCO_ABLATION_ENVS,
+    seeds: int = MUJOCO_ABLATION_SEEDS,
+) -> dict[str, Any]:
     """``T2_RULE_CRITERION`` applied to ``gains`` (``t2_rule_gains``): per setting, the gain
     on each env and their mean with a stratified-bootstrap CI (seeds resampled within each
     env); the leader so far, and the choice once every setting has ``seeds`` seeds on every
@@ -191,24 +240,40 @@ def choose_t2_rule(gains: dict[str, dict[str, list[float]]], rng: np.random.Gene
         per_env = gains.get(setting, {})
         row: dict[str, Any] = {
             "setting": setting,
-            "per_env": {env: {"gain": float(np.mean(per_env[env])), "n": len(per_env[env])}
-                        for env in envs if per_env.get(env)},
-            "gain": float("nan"), "low": float("nan"), "high": float("nan"),
-            "complete": all(len(per_env.get(env, [])) >= seeds for env in envs)}
+            "per_env": {
+                env: {"gain": float(np.mean(per_env[env])), "n": len(per_env[env])}
+                for env in envs
+                if per_env.get(env)
+            },
+            "gain": float("nan"),
+            "low": float("nan"),
+            "high": float("nan"),
+            "complete": all(len(per_env.get(env, [])) >= seeds for env in envs),
+        }
         if len(row["per_env"]) == len(envs):
             row["gain"] = float(np.mean([row["per_env"][env]["gain"] for env in envs]))
         if row["complete"]:
             matrix = np.array([per_env[env][:seeds] for env in envs]).T  # (seeds, envs)
             est = stratified_bootstrap_ci(lambda m: m.mean(axis=0).mean(), (matrix,), rng)
-            row["gain"], row["low"], row["high"] = (float(est.value), float(est.low),
-                                                    float(est.high))
+            row["gain"], row["low"], row["high"] = (
+                float(est.value),
+                float(est.low),
+                float(est.high),
+            )
         rows.append(row)
     scored = [r for r in rows if not math.isnan(r["gain"])]
     # max() keeps the first of equal values: the smaller T2 wins a tie
     leader = max(scored, key=lambda r: r["gain"])["setting"] if scored else None
     complete = all(r["complete"] for r in rows)
-    return {"criterion": T2_RULE_CRITERION, "envs": list(envs), "seeds": seeds, "rows": rows,
-            "complete": complete, "leader": leader, "choice": leader if complete else None}
+    return {
+        "criterion": T2_RULE_CRITERION,
+        "envs": list(envs),
+        "seeds": seeds,
+        "rows": rows,
+        "complete": complete,
+        "leader": leader,
+        "choice": leader if complete else None,
+    }
 
 
 def area_under_curve(run: Run) -> float:
@@ -219,21 +284,31 @@ def area_under_curve(run: Run) -> float:
     return float(np.trapezoid(returns, steps) / (steps[-1] - steps[0]))
 
 
-def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
-                           store: Path = Path("runs"), out_dir: Path | None = None,
-                           storage: str | None = None, workers: int | None = None,
-                           thresholds: list[float] | None = None,
-                           sigmas: list[float] | None = None, env_id: str = ABLATION_ENV,
-                           checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-                           executor: str = "local", address: str | None = None,
-                           device: str = "auto", gpu_workers: int | None = None,
-                           batch: int | None = None, dry_run: bool = False) -> Path | None:
+def run_threshold_ablation(
+    profile: str = "quick",
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+    storage: str | None = None,
+    workers: int | None = None,
+    thresholds: list[float] | None = None,
+    sigmas: list[float] | None = None,
+    env_id: str = ABLATION_ENV,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    executor: str = "local",
+    address: str | None = None,
+    device: str = "auto",
+    gpu_workers: int | None = None,
+    batch: int | None = None,
+    dry_run: bool = False,
+) -> Path | None:
     """Run (or finish) the sweep and write its report; return the report's path (None with
     ``dry_run``: print what would train, from one machine, and touch nothing)."""
     chosen = get_profile(profile)
     if env_id not in chosen.steps:
-        raise HarnessError(f"profile '{profile}' has no budget for {env_id}",
-                           f"pick one of {sorted(chosen.steps)}")
+        raise HarnessError(
+            f"profile '{profile}' has no budget for {env_id}", f"pick one of {sorted(chosen.steps)}"
+        )
     default_seeds = MUJOCO_ABLATION_SEEDS if env_id in MUJOCO_ABLATION_ENVS else chosen.seeds
     n_seeds = default_seeds if seeds is None else seeds
     if n_seeds <= 0:
@@ -245,10 +320,23 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     store = Path(store)
     if dry_run:
         everything = sac_specs(chosen, env_id, n_seeds) + [
-            spec for threshold in grid_t2 for sigma in grid_sigma
-            for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
-        run_grid(everything, store, workers, checkpoint_interval, executor, address, device,
-                 gpu_workers, batch, dry_run=True)
+            spec
+            for threshold in grid_t2
+            for sigma in grid_sigma
+            for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
+        ]
+        run_grid(
+            everything,
+            store,
+            workers,
+            checkpoint_interval,
+            executor,
+            address,
+            device,
+            gpu_workers,
+            batch,
+            dry_run=True,
+        )
         return None
     import optuna
 
@@ -267,31 +355,59 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     # points' runs share batches (T2 and sigma are per member); the trials below then record
     # what is stored. With --storage, machines sharing the study take its points one by one.
     sac = sac_specs(chosen, env_id, n_seeds)
-    sweep = [] if shared_study else [
-        spec for threshold in grid_t2 for sigma in grid_sigma
-        for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)]
-    trained = run_grid(sac + sweep, store, workers, checkpoint_interval, executor, address,
-                       device, gpu_workers, batch)
+    sweep = (
+        []
+        if shared_study
+        else [
+            spec
+            for threshold in grid_t2
+            for sigma in grid_sigma
+            for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
+        ]
+    )
+    trained = run_grid(
+        sac + sweep,
+        store,
+        workers,
+        checkpoint_interval,
+        executor,
+        address,
+        device,
+        gpu_workers,
+        batch,
+    )
     failed = list(trained.failed)
     failed_ids = {run_id for run_id, _ in failed}
     sac_ids = {prepare(spec).run_id for spec in sac}
-    sac_outcome = GridOutcome(stored_runs(sac, store),
-                              [f for f in failed if f[0] in sac_ids], None)
+    sac_outcome = GridOutcome(stored_runs(sac, store), [f for f in failed if f[0] in sac_ids], None)
 
     def objective(trial: Any) -> float:
         threshold = trial.suggest_categorical("guide_threshold", grid_t2)
         sigma = trial.suggest_categorical("guide_noise_std", grid_sigma)
-        specs = [s for s in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
-                 if prepare(s).run_id not in failed_ids]  # a failure is not retrained at once
-        outcome = run_grid(specs, store, workers, checkpoint_interval, executor, address,
-                           device, gpu_workers, batch)
+        specs = [
+            s
+            for s in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
+            if prepare(s).run_id not in failed_ids
+        ]  # a failure is not retrained at once
+        outcome = run_grid(
+            specs,
+            store,
+            workers,
+            checkpoint_interval,
+            executor,
+            address,
+            device,
+            gpu_workers,
+            batch,
+        )
         failed.extend(outcome.failed)
         if not outcome.runs:
-            raise HarnessError(f"every run failed at T2 = {threshold}, sigma = {sigma}",
-                               "see the reasons printed above")
+            raise HarnessError(
+                f"every run failed at T2 = {threshold}, sigma = {sigma}",
+                "see the reasons printed above",
+            )
         trial.set_user_attr("run_ids", [r.path.name for r in outcome.runs])
-        trial.set_user_attr("auc_mean", float(np.mean([area_under_curve(r)
-                                                        for r in outcome.runs])))
+        trial.set_user_attr("auc_mean", float(np.mean([area_under_curve(r) for r in outcome.runs])))
         return float(np.mean([r.final_return for r in outcome.runs]))
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -301,16 +417,27 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
     # Every trial is enqueued with its grid point, so the sampler never chooses (optuna's
     # grid sampler would count failed or interrupted trials as visited, and stop the study).
     study = optuna.create_study(
-        study_name=study_name, storage=storage, load_if_exists=True, direction="maximize",
-        sampler=optuna.samplers.RandomSampler(seed=0))
+        study_name=study_name,
+        storage=storage,
+        load_if_exists=True,
+        direction="maximize",
+        sampler=optuna.samplers.RandomSampler(seed=0),
+    )
     # The store, not the study, is the record: a point is done when its runs are stored.
-    remaining = [(t, s) for t in grid_t2 for s in grid_sigma
-                 if len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
-                 < n_seeds]
+    remaining = [
+        (t, s)
+        for t in grid_t2
+        for s in grid_sigma
+        if len(stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store)) < n_seeds
+    ]
     waiting = optuna.trial.TrialState.WAITING
-    queued = {tuple(t.system_attrs.get("fixed_params", {}).get(k)
-                    for k in ("guide_threshold", "guide_noise_std"))
-              for t in study.get_trials(deepcopy=False, states=(waiting,))}
+    queued = {
+        tuple(
+            t.system_attrs.get("fixed_params", {}).get(k)
+            for k in ("guide_threshold", "guide_noise_std")
+        )
+        for t in study.get_trials(deepcopy=False, states=(waiting,))
+    }
     for threshold, sigma in remaining:
         if (threshold, sigma) not in queued:  # another worker's queue is shared, not doubled
             study.enqueue_trial({"guide_threshold": threshold, "guide_noise_std": sigma})
@@ -332,8 +459,17 @@ def run_threshold_ablation(profile: str = "quick", seeds: int | None = None,
             cells.append(Cell(threshold, sigma, stored_runs(specs, store)))
     stored = {r.path.name for c in cells for r in c.runs} | {r.path.name for r in sac_outcome.runs}
     failed = [f for f in failed if f[0] not in stored]  # another worker may have finished it
-    return write_ablation_report(cells, sac_outcome, chosen, env_id, study_name, storage,
-                                 failed, out_dir, t2_rule_standing(env_id, store, profile))
+    return write_ablation_report(
+        cells,
+        sac_outcome,
+        chosen,
+        env_id,
+        study_name,
+        storage,
+        failed,
+        out_dir,
+        t2_rule_standing(env_id, store, profile),
+    )
 
 
 def zero_threshold_equals_sac(cells: list[Cell], sac_runs: list[Run]) -> dict[str, Any] | None:
@@ -375,8 +511,10 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
     labels = list(dict.fromkeys(r["label"] for r in rows))
     shades = dict(zip(sigmas, t2_shades(len(sigmas)), strict=True))
     fig, axes, _ = panel_grid(2, 2, 4.0, legend_height=0.6)
-    for ax, key, reference, name in ((axes[0], "final", sac_final, "final return"),
-                                     (axes[1], "auc", sac_auc, "area under the curve")):
+    for ax, key, reference, name in (
+        (axes[0], "final", sac_final, "final return"),
+        (axes[1], "auc", sac_auc, "area under the curve"),
+    ):
         for i, sigma in enumerate(sigmas):
             xs, ys, lows, highs = [], [], [], []
             for r in rows:
@@ -385,14 +523,27 @@ def _figure(rows: list[dict[str, Any]], sac_final: float | None, sac_auc: float 
                     ys.append(r[key]["mean"])
                     lows.append(r[key]["mean"] - r[key]["low"] if r[key]["n"] > 1 else 0)
                     highs.append(r[key]["high"] - r[key]["mean"] if r[key]["n"] > 1 else 0)
-            ax.errorbar(xs, ys, yerr=[lows, highs], fmt="o-", capsize=3, color=shades[sigma],
-                        linewidth=1.8, markersize=6)
+            ax.errorbar(
+                xs,
+                ys,
+                yerr=[lows, highs],
+                fmt="o-",
+                capsize=3,
+                color=shades[sigma],
+                linewidth=1.8,
+                markersize=6,
+            )
         if reference is not None:
             ax.axhline(reference, color=algo_color("sac"), linestyle="--", linewidth=1.5)
         ax.set_xticks(range(len(labels)), [tick_label(label) for label in labels])
-        ax.set_xlabel("discriminator threshold T2" + (
-            ": multiple of the spacing (value)" if any(" spacing (" in label for label in labels)
-            else ""))
+        ax.set_xlabel(
+            "discriminator threshold T2"
+            + (
+                ": multiple of the spacing (value)"
+                if any(" spacing (" in label for label in labels)
+                else ""
+            )
+        )
         ax.set_ylabel(name)
     handles = [Line2D([], [], color=shades[s], marker="o", linewidth=1.8) for s in sigmas]
     names = [f"DRL-EG, sigma = {s:g} (mean over seeds, t-interval)" for s in sigmas]
@@ -421,8 +572,14 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
     what the training episodes (the executed actions, a guider's included) earned."""
     from matplotlib.lines import Line2D
 
-    from replicate.figures import (algo_color, format_steps_axis, panel_grid, png_bytes,
-                                   set_theme, shared_legend)
+    from replicate.figures import (
+        algo_color,
+        format_steps_axis,
+        panel_grid,
+        png_bytes,
+        set_theme,
+        shared_legend,
+    )
 
     set_theme()
     first_sigma = min((c.sigma for c in cells), default=0.0)
@@ -447,15 +604,16 @@ def _curves_figure(cells: list[Cell], sac_runs: list[Run], spacing: float | None
         names.append(f"T2 = {threshold_label(cell.threshold, spacing)}")
     if sac_runs:
         sac = algo_color("sac")
-        left.plot(*_mean_curve(sac_runs, "return_mean"), color=sac, linestyle="--",
-                  linewidth=1.8)
+        left.plot(*_mean_curve(sac_runs, "return_mean"), color=sac, linestyle="--", linewidth=1.8)
         dotted |= dotted_training_returns(sac_runs, sac)
         handles.append(Line2D([], [], color=sac, linestyle="--", linewidth=1.8))
         names.append("SAC")
     format_steps_axis(left)
     left.set_ylabel("return (mean over seeds)")
-    left.set_title("solid: deterministic evaluation" + ("; dotted: training episodes"
-                                                         if dotted else ""), fontsize=11)
+    left.set_title(
+        "solid: deterministic evaluation" + ("; dotted: training episodes" if dotted else ""),
+        fontsize=11,
+    )
     format_steps_axis(right)
     right.set_ylabel("guided share of training steps")
     right.set_ylim(-0.02, 1.02)
@@ -469,8 +627,9 @@ def t2_rule_standing(env_id: str, store: Path, profile: str) -> dict[str, Any] |
     MountainCar); only the reduced profile's standing fixes the rule."""
     if env_id not in MUJOCO_ABLATION_ENVS:
         return None
-    standing = choose_t2_rule(t2_rule_gains(Path(store), profile),
-                              np.random.default_rng(REPORT_SEED + 1))
+    standing = choose_t2_rule(
+        t2_rule_gains(Path(store), profile), np.random.default_rng(REPORT_SEED + 1)
+    )
     return dict(standing, profile=profile, fixes_the_rule=profile == RULE_PROFILE)
 
 
@@ -483,10 +642,17 @@ def _shown_path(path: str) -> str:
         return portable_path(path)
 
 
-def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: Profile,
-                          env_id: str, study_name: str, storage: str,
-                          failed: list[tuple[str, str]], out_dir: Path,
-                          t2_rule: dict[str, Any] | None = None) -> Path:
+def write_ablation_report(
+    cells: list[Cell],
+    sac_outcome: GridOutcome,
+    profile: Profile,
+    env_id: str,
+    study_name: str,
+    storage: str,
+    failed: list[tuple[str, str]],
+    out_dir: Path,
+    t2_rule: dict[str, Any] | None = None,
+) -> Path:
     from replicate import provenance
     from replicate.report import _atomic_write, summary_bytes
 
@@ -494,53 +660,88 @@ def write_ablation_report(cells: list[Cell], sac_outcome: GridOutcome, profile: 
         if not values:
             return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
         est = t_mean(np.array(values))
-        return {"mean": est.value, "low": est.low, "high": est.high, "n": len(values),
-                "method": est.label}
+        return {
+            "mean": est.value,
+            "low": est.low,
+            "high": est.high,
+            "n": len(values),
+            "method": est.label,
+        }
 
     spacing = threshold_spacing(env_id)
     admitted = admitted_share(env_id, [c.threshold for c in cells])
-    rows = [{"threshold": c.threshold, "sigma": c.sigma,
-             "label": threshold_label(c.threshold, spacing), "admitted_random_share": share,
-             "final": estimate([r.final_return for r in c.runs]),
-             "auc": estimate([area_under_curve(r) for r in c.runs]),
-             "guided_share": [r.guided_share for r in c.runs],
-             "runs": [r.path.name for r in c.runs]} for c, share in zip(cells, admitted)]
+    rows = [
+        {
+            "threshold": c.threshold,
+            "sigma": c.sigma,
+            "label": threshold_label(c.threshold, spacing),
+            "admitted_random_share": share,
+            "final": estimate([r.final_return for r in c.runs]),
+            "auc": estimate([area_under_curve(r) for r in c.runs]),
+            "guided_share": [r.guided_share for r in c.runs],
+            "runs": [r.path.name for r in c.runs],
+        }
+        for c, share in zip(cells, admitted)
+    ]
     sac_runs = sac_outcome.runs
     sac_final = float(np.mean([r.final_return for r in sac_runs])) if sac_runs else None
     sac_auc = float(np.mean([area_under_curve(r) for r in sac_runs])) if sac_runs else None
     context = {
         "title": f"Threshold ablation on {env_id}, profile '{profile.name}'",
-        "profile": profile, "env_id": env_id, "rows": rows,
+        "profile": profile,
+        "env_id": env_id,
+        "rows": rows,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "figure_png_b64": base64.b64encode(_figure(rows, sac_final, sac_auc)).decode(),
         "curves_png_b64": base64.b64encode(_curves_figure(cells, sac_runs, spacing)).decode(),
         "spacing": spacing,
-        "zero_check": zero_threshold_equals_sac(cells, sac_runs), "sac_final": sac_final,
-        "steps": profile.steps[env_id], "study_name": study_name,
-        "storage": (_shown_path(storage.split("///")[-1]) if storage.startswith("sqlite")
-                    else "(database URL)"),
-        "failed": failed, "always": ALWAYS, "sac_runs": [r.path.name for r in sac_runs],
-        "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}
-                            | {provenance.git_revision()}),
-        "t2_rule": t2_rule, "rule_in_force": experiments.MUJOCO_T2_RULE,
+        "zero_check": zero_threshold_equals_sac(cells, sac_runs),
+        "sac_final": sac_final,
+        "steps": profile.steps[env_id],
+        "study_name": study_name,
+        "storage": (
+            _shown_path(storage.split("///")[-1])
+            if storage.startswith("sqlite")
+            else "(database URL)"
+        ),
+        "failed": failed,
+        "always": ALWAYS,
+        "sac_runs": [r.path.name for r in sac_runs],
+        "revisions": sorted(
+            {r.provenance["git_revision"] for c in cells for r in c.runs}
+            | {provenance.git_revision()}
+        ),
+        "t2_rule": t2_rule,
+        "rule_in_force": experiments.MUJOCO_T2_RULE,
     }
     environment = report_environment()
     html = environment.get_template("ablation.html").render(**context)
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
-    summary = {"profile": profile.name, "env_id": env_id, "spacing": spacing, "rows": rows,
-               "zero_threshold_equals_sac": context["zero_check"], "sac_final_mean": sac_final,
-               "sac_runs": context["sac_runs"],
-               "failed": [{"run_id": i, "reason": why} for i, why in failed],
-               "t2_rule": t2_rule, "steps": context["steps"],
-               "generated": context["generated"]}
+    summary = {
+        "profile": profile.name,
+        "env_id": env_id,
+        "spacing": spacing,
+        "rows": rows,
+        "zero_threshold_equals_sac": context["zero_check"],
+        "sac_final_mean": sac_final,
+        "sac_runs": context["sac_runs"],
+        "failed": [{"run_id": i, "reason": why} for i, why in failed],
+        "t2_rule": t2_rule,
+        "steps": context["steps"],
+        "generated": context["generated"],
+    }
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
 
 
-def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"),
-                               out_dir: Path | None = None, env_id: str = ABLATION_ENV,
-                               storage: str | None = None) -> Path | None:
+def rebuild_threshold_ablation(
+    profile: str = "quick",
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+    env_id: str = ABLATION_ENV,
+    storage: str | None = None,
+) -> Path | None:
     """Write the ablation report from the store alone: every (T2, sigma) point whose DRL-EG
     runs at the profile's budget are there, over the seeds found. Returns None, writing
     nothing, when the store holds none (a committed report stays)."""
@@ -551,23 +752,38 @@ def rebuild_threshold_ablation(profile: str = "quick", store: Path = Path("runs"
     points: dict[tuple[float, float], int] = {}
     for run in completed_runs(store):
         spec = run.spec
-        if (spec["algo"] == "drl-eg" and spec["env_id"] == env_id
-                and spec["total_steps"] == chosen.steps.get(env_id)):
-            key = (spec["hyperparameters"]["guide_threshold"],
-                   spec["hyperparameters"]["guide_noise_std"])
+        if (
+            spec["algo"] == "drl-eg"
+            and spec["env_id"] == env_id
+            and spec["total_steps"] == chosen.steps.get(env_id)
+        ):
+            key = (
+                spec["hyperparameters"]["guide_threshold"],
+                spec["hyperparameters"]["guide_noise_std"],
+            )
             points[key] = max(points.get(key, 0), spec["seed"] + 1)
     # as many seeds as the sweep trains: Fig. 3's DRL-EG runs share the 1x point's spec on
     # more seeds, and would otherwise give that point more seeds than the others
     sweep_seeds = MUJOCO_ABLATION_SEEDS if env_id in MUJOCO_ABLATION_ENVS else chosen.seeds
     n_seeds = min(max(points.values(), default=0), sweep_seeds)
-    cells = [Cell(t, s, stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
-             for t, s in sorted(points)]
+    cells = [
+        Cell(t, s, stored_runs(ablation_specs(chosen, env_id, t, s, n_seeds), store))
+        for t, s in sorted(points)
+    ]
     cells = [c for c in cells if c.runs]  # runs of other settings than the sweep's own
     if not cells:
         return None
     sac_outcome = GridOutcome(stored_runs(sac_specs(chosen, env_id, n_seeds), store), [], None)
     storage = storage or f"sqlite:///{(store / 'ablate-threshold.db').resolve()}"
     out_dir = Path(out_dir or report_dir(profile, ablation_report_name(env_id)))
-    return write_ablation_report(cells, sac_outcome, chosen, env_id,
-                                 f"ablate-threshold-{profile}-{env_id}-s{n_seeds}", storage, [],
-                                 out_dir, t2_rule_standing(env_id, store, profile))
+    return write_ablation_report(
+        cells,
+        sac_outcome,
+        chosen,
+        env_id,
+        f"ablate-threshold-{profile}-{env_id}-s{n_seeds}",
+        storage,
+        [],
+        out_dir,
+        t2_rule_standing(env_id, store, profile),
+    )

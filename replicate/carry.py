@@ -12,10 +12,10 @@ far) is kept as it was, xz-compressed, with the run directories' small files (sp
 the parts trained so far) beside it.
 
 Layout: ``<store>/carry/<batch id or run id>/`` holding ``manifest.json``,
-``state.pt.xz``, ``actions-<k>.npy.xz`` per member and ``partial/<run id>/``. ``python -m replicate carry`` packs every
-unfinished checkpoint of a store; the runner unpacks a carried one when it meets a run or
-batch without a local checkpoint (or with an older one), and removes it when the run or
-batch lands, never when it fails.
+``state.pt.xz``, ``actions-<k>.npy.xz`` per member and ``partial/<run id>/``.
+``python -m replicate carry`` packs every unfinished checkpoint of a store; the runner
+unpacks a carried one when it meets a run or batch without a local checkpoint (or with an
+older one), and removes it when the run or batch lands, never when it fails.
 """
 
 from __future__ import annotations
@@ -71,15 +71,24 @@ def _sha256(array: np.ndarray) -> str:
 
 # -- rebuilding a replay from its actions -------------------------------------------------
 
+
 def _steps(count: int, what: str, progress: bool) -> Any:
     from tqdm import tqdm
 
-    return tqdm(range(count), desc=f"rebuilding {what}", unit="step", leave=False,
-                mininterval=1.0, disable=not progress, dynamic_ncols=True)
+    return tqdm(
+        range(count),
+        desc=f"rebuilding {what}",
+        unit="step",
+        leave=False,
+        mininterval=1.0,
+        disable=not progress,
+        dynamic_ncols=True,
+    )
 
 
-def regenerate_batch_replay(env_id: str, seeds: list[int], actions: np.ndarray,
-                            progress: bool = False) -> tuple[np.ndarray, list[Any], np.ndarray]:
+def regenerate_batch_replay(
+    env_id: str, seeds: list[int], actions: np.ndarray, progress: bool = False
+) -> tuple[np.ndarray, list[Any], np.ndarray]:
     """The stacked replay rows (members, steps, 2 obs + act + 2) that a seed batch's envs
     produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
     ``baselines.batched.run_stacked_off_policy`` steps them (every member alive); with the
@@ -102,8 +111,9 @@ def regenerate_batch_replay(env_id: str, seeds: list[int], actions: np.ndarray,
     return replay.data[:, :steps].numpy(), snapshot, obs
 
 
-def regenerate_run_replay(env_id: str, seed: int, actions: np.ndarray,
-                          progress: bool = False) -> dict[str, np.ndarray]:
+def regenerate_run_replay(
+    env_id: str, seed: int, actions: np.ndarray, progress: bool = False
+) -> dict[str, np.ndarray]:
     """The one-run replay arrays that ``baselines.sac.run_off_policy``'s env produces when
     stepped through ``actions`` (steps, act_dim) from its seed."""
     from baselines.common.buffer import ReplayBuffer
@@ -111,8 +121,9 @@ def regenerate_run_replay(env_id: str, seed: int, actions: np.ndarray,
 
     env = make_env(env_id, seed=seed)
     try:
-        replay = ReplayBuffer(env.observation_space.shape[0], actions.shape[1],
-                              max(len(actions), 1))
+        replay = ReplayBuffer(
+            env.observation_space.shape[0], actions.shape[1], max(len(actions), 1)
+        )
         obs, _ = env.reset(seed=seed)
         for t in _steps(len(actions), f"{env_id} seed {seed}", progress):
             action = actions[t]
@@ -124,8 +135,10 @@ def regenerate_run_replay(env_id: str, seed: int, actions: np.ndarray,
     finally:
         env.close()
     state = replay.state_dict()
-    return {name: state[name][:len(actions)] for name in
-            ("observations", "actions", "rewards", "next_observations", "terminated")}
+    return {
+        name: state[name][: len(actions)]
+        for name in ("observations", "actions", "rewards", "next_observations", "terminated")
+    }
 
 
 def _run_replay_digest(arrays: dict[str, np.ndarray]) -> str:
@@ -136,6 +149,7 @@ def _run_replay_digest(arrays: dict[str, np.ndarray]) -> str:
 
 
 # -- packing ------------------------------------------------------------------------------
+
 
 def _write_xz(path: Path, payload: bytes) -> None:
     tmp = path.with_name(path.name + ".partial")
@@ -156,10 +170,17 @@ def _write_state(target: Path, state: dict[str, Any], actions: np.ndarray) -> No
 
 
 def _read_state(path: Path, members: int) -> tuple[dict[str, Any], np.ndarray]:
-    state = torch.load(io.BytesIO(lzma.decompress((path / STATE_FILE).read_bytes())),
-                       weights_only=False, map_location="cpu")
-    actions = np.stack([np.load(io.BytesIO(lzma.decompress(
-        (path / ACTIONS_FILE.format(k)).read_bytes()))) for k in range(members)])
+    state = torch.load(
+        io.BytesIO(lzma.decompress((path / STATE_FILE).read_bytes())),
+        weights_only=False,
+        map_location="cpu",
+    )
+    actions = np.stack(
+        [
+            np.load(io.BytesIO(lzma.decompress((path / ACTIONS_FILE.format(k)).read_bytes())))
+            for k in range(members)
+        ]
+    )
     return state, actions
 
 
@@ -172,8 +193,10 @@ def batch_members(store: Path, ident: str) -> list[str]:
     writes into the batch's directory."""
     listed = Path(store) / f".{ident}" / "members.json"
     if not listed.is_file():
-        raise CarryError(f"{ident} does not list its members (started before the runner "
-                         "wrote members.json)", "let the batch finish where it is")
+        raise CarryError(
+            f"{ident} does not list its members (started before the runner wrote members.json)",
+            "let the batch finish where it is",
+        )
     return json.loads(listed.read_text())
 
 
@@ -201,8 +224,9 @@ def _is_done(store: Path, run_id: str) -> bool:
     return (Path(store) / run_id / "provenance.json").is_file()
 
 
-def _finish_pack(store: Path, name: str, members: list[str], source: Path,
-                 build: Callable[[Path], None]) -> Path:
+def _finish_pack(
+    store: Path, name: str, members: list[str], source: Path, build: Callable[[Path], None]
+) -> Path:
     """Build the carried directory aside, then swap it in: a kill mid-pack leaves the last
     carried version whole. A run that landed while it packed is not carried."""
     root = carry_root(store)
@@ -227,12 +251,22 @@ def _finish_pack(store: Path, name: str, members: list[str], source: Path,
     return final
 
 
-def _manifest(kind: str, name: str, env_id: str, step: int, members: list[str],
-              seeds: list[int], digest: str) -> dict[str, Any]:
-    return {"format": FORMAT, "kind": kind, "name": name, "env_id": env_id, "step": step,
-            "members": members, "seeds": seeds, "replay_sha256": digest,
-            "packed_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "git_revision": provenance.git_revision(), "cpu_model": provenance.cpu_model()}
+def _manifest(
+    kind: str, name: str, env_id: str, step: int, members: list[str], seeds: list[int], digest: str
+) -> dict[str, Any]:
+    return {
+        "format": FORMAT,
+        "kind": kind,
+        "name": name,
+        "env_id": env_id,
+        "step": step,
+        "members": members,
+        "seeds": seeds,
+        "replay_sha256": digest,
+        "packed_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "git_revision": provenance.git_revision(),
+        "cpu_model": provenance.cpu_model(),
+    }
 
 
 def _not_behind(store: Path, name: str, step: int) -> None:
@@ -242,8 +276,11 @@ def _not_behind(store: Path, name: str, step: int) -> None:
     if path is not None:
         at = json.loads((path / MANIFEST_FILE).read_text())["step"]
         if at >= step:
-            raise CarryError(f"{name} is carried at step {at:,} already (its checkpoint "
-                             f"here is at step {step:,})", "nothing to pack")
+            raise CarryError(
+                f"{name} is carried at step {at:,} already (its checkpoint "
+                f"here is at step {step:,})",
+                "nothing to pack",
+            )
 
 
 def _load(path: Path) -> dict[str, Any]:
@@ -266,16 +303,20 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     if not checkpoint["alive"].all():
         raise CarryError(f"{ident} has a failed member", "let the batch finish where it is")
     if data.shape[1] != step:
-        raise CarryError(f"{ident}'s replay holds {data.shape[1]} transitions after {step} "
-                         "steps (preloaded with demonstrations, or wrapped around)",
-                         "let the batch finish where it is")
+        raise CarryError(
+            f"{ident}'s replay holds {data.shape[1]} transitions after {step} "
+            "steps (preloaded with demonstrations, or wrapped around)",
+            "let the batch finish where it is",
+        )
     obs_dim = checkpoint["obs"].shape[1]  # a row is (s, a, r, s', terminated)
     act_dim = data.shape[2] - 2 - 2 * obs_dim
-    actions = np.ascontiguousarray(data[:, :, obs_dim:obs_dim + act_dim])
+    actions = np.ascontiguousarray(data[:, :, obs_dim : obs_dim + act_dim])
     rebuilt, _, _ = regenerate_batch_replay(env_id, seeds, actions, progress)
     if not np.array_equal(rebuilt, data):
-        raise CarryError(f"{ident}'s replay does not come back from its actions here",
-                         "let the batch finish where it is")
+        raise CarryError(
+            f"{ident}'s replay does not come back from its actions here",
+            "let the batch finish where it is",
+        )
     carried_state = dict(checkpoint)
     carried_state["buffer"] = {"position": checkpoint["buffer"]["position"]}
 
@@ -285,8 +326,12 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
         (target / "batch" / "members.json").write_text(json.dumps(members) + "\n")
         for run_id, work in zip(members, work_dirs):
             _copy_files(work, target / "partial" / run_id, RUN_FILES)
-        (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
-            "batch", ident, env_id, step, members, seeds, _sha256(data)), indent=1) + "\n")
+        (target / MANIFEST_FILE).write_text(
+            json.dumps(
+                _manifest("batch", ident, env_id, step, members, seeds, _sha256(data)), indent=1
+            )
+            + "\n"
+        )
 
     final = _finish_pack(store, ident, members, batch_dir / CHECKPOINT_FILE, build)
     return Packed(ident, step, len(members), _size(final))
@@ -302,26 +347,45 @@ def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
     _not_behind(store, run_id, step)
     names = ("observations", "actions", "rewards", "next_observations", "terminated")
     if not isinstance(buffer, dict) or any(name not in buffer for name in names):
-        raise CarryError(f"{run_id}'s checkpoint has no plain replay buffer ({spec['algo']})",
-                         "let the run finish where it is")
+        raise CarryError(
+            f"{run_id}'s checkpoint has no plain replay buffer ({spec['algo']})",
+            "let the run finish where it is",
+        )
     if len(buffer["rewards"]) != step:
-        raise CarryError(f"{run_id}'s replay holds {len(buffer['rewards'])} transitions "
-                         f"after {step} steps (preloaded with demonstrations, or wrapped "
-                         "around)", "let the run finish where it is")
+        raise CarryError(
+            f"{run_id}'s replay holds {len(buffer['rewards'])} transitions "
+            f"after {step} steps (preloaded with demonstrations, or wrapped "
+            "around)",
+            "let the run finish where it is",
+        )
     actions = np.ascontiguousarray(buffer["actions"])
     rebuilt = regenerate_run_replay(spec["env_id"], spec["seed"], actions, progress)
     if any(not np.array_equal(rebuilt[name], buffer[name]) for name in names):
-        raise CarryError(f"{run_id}'s replay does not come back from its actions here",
-                         "let the run finish where it is")
+        raise CarryError(
+            f"{run_id}'s replay does not come back from its actions here",
+            "let the run finish where it is",
+        )
     carried_state = dict(checkpoint)
     carried_state["buffer"] = {"position": buffer["position"]}
 
     def build(target: Path) -> None:
         _write_state(target, carried_state, actions[None])
         _copy_files(work, target / "partial" / run_id, RUN_FILES)
-        (target / MANIFEST_FILE).write_text(json.dumps(_manifest(
-            "run", run_id, spec["env_id"], step, [run_id], [spec["seed"]],
-            _run_replay_digest(buffer)), indent=1) + "\n")
+        (target / MANIFEST_FILE).write_text(
+            json.dumps(
+                _manifest(
+                    "run",
+                    run_id,
+                    spec["env_id"],
+                    step,
+                    [run_id],
+                    [spec["seed"]],
+                    _run_replay_digest(buffer),
+                ),
+                indent=1,
+            )
+            + "\n"
+        )
 
     final = _finish_pack(store, run_id, [run_id], work / CHECKPOINT_FILE, build)
     return Packed(run_id, step, 1, _size(final))
@@ -337,12 +401,19 @@ def unfinished(store: Path) -> list[tuple[str, str]]:
     the batch's checkpoint is the one that counts, so that one is left out."""
     store = Path(store)
     batches = [p.parent for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
-    in_batches = {run_id for batch_dir in batches if (batch_dir / "members.json").is_file()
-                  for run_id in json.loads((batch_dir / "members.json").read_text())}
-    runs = [p.parent.name.removeprefix(".partial-")
-            for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))]
-    return ([("batch", d.name[1:]) for d in batches]
-            + [("run", r) for r in runs if r not in in_batches])
+    in_batches = {
+        run_id
+        for batch_dir in batches
+        if (batch_dir / "members.json").is_file()
+        for run_id in json.loads((batch_dir / "members.json").read_text())
+    }
+    runs = [
+        p.parent.name.removeprefix(".partial-")
+        for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))
+    ]
+    return [("batch", d.name[1:]) for d in batches] + [
+        ("run", r) for r in runs if r not in in_batches
+    ]
 
 
 def prune(store: Path) -> list[str]:
@@ -363,14 +434,17 @@ def _pack_one(store: Path, kind: str, name: str, progress: bool) -> Packed | str
     except CarryError as exc:
         return str(exc)
     except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
-        return (f"{name}'s checkpoint has no replay of the SAC family's layout "
-                f"({type(exc).__name__}: {exc}); fix: let it finish where it is")
+        return (
+            f"{name}'s checkpoint has no replay of the SAC family's layout "
+            f"({type(exc).__name__}: {exc}); fix: let it finish where it is"
+        )
     except Exception as exc:  # it landed or was removed while we looked, or will not load
         return f"{name}: {type(exc).__name__}: {exc}; fix: pack again, or let it finish"
 
 
-def pack_all(store: Path, progress: bool = False, workers: int = 1
-             ) -> tuple[list[Packed], list[str]]:
+def pack_all(
+    store: Path, progress: bool = False, workers: int = 1
+) -> tuple[list[Packed], list[str]]:
     """Carry every checkpoint of the store, ``workers`` at a time (rebuilding a replay to
     check it steps MuJoCo once per transition: minutes for a 300k-step Ant batch); the
     packed ones, and a line per one that could not be carried."""
@@ -381,15 +455,19 @@ def pack_all(store: Path, progress: bool = False, workers: int = 1
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(min(workers, len(items)), mp.get_context("spawn")) as pool:
-            results = list(pool.map(_pack_one, [store] * len(items), *zip(*items),
-                                    [False] * len(items)))
+            results = list(
+                pool.map(_pack_one, [store] * len(items), *zip(*items), [False] * len(items))
+            )
     else:
         results = [_pack_one(store, kind, name, progress) for kind, name in items]
-    return ([r for r in results if isinstance(r, Packed)],
-            [r for r in results if isinstance(r, str)])
+    return (
+        [r for r in results if isinstance(r, Packed)],
+        [r for r in results if isinstance(r, str)],
+    )
 
 
 # -- unpacking ----------------------------------------------------------------------------
+
 
 def _recover(root: Path, name: str) -> None:
     """Put back a carried directory that a kill mid-swap left as ``.<name>.old``."""
@@ -421,8 +499,10 @@ def should_unpack(store: Path, name: str, local_checkpoint: Path) -> bool:
 def _load_carried(path: Path, kind: str) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
     manifest = json.loads((path / MANIFEST_FILE).read_text())
     if manifest.get("format") != FORMAT or manifest.get("kind") != kind:
-        raise CarryError(f"{path} is not a carried {kind} of format {FORMAT}",
-                         f"delete {path} to start the {kind} over")
+        raise CarryError(
+            f"{path} is not a carried {kind} of format {FORMAT}",
+            f"delete {path} to start the {kind} over",
+        )
     state, actions = _read_state(path, len(manifest["members"]))
     return manifest, state, actions
 
@@ -442,7 +522,8 @@ def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
         f"machine (packed on {manifest['cpu_model']}; the envs stepped differently here)",
         f"resume it on a machine like that one, set {ACCEPT_REBUILT}=1 to resume on the "
         f"replay as rebuilt here, or delete {path} (the run then resumes from a checkpoint "
-        "of this store's own, or starts over)")
+        "of this store's own, or starts over)",
+    )
 
 
 def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
@@ -453,8 +534,12 @@ def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
         return
     parts = json.loads(parts_path.read_text())
     if parts:
-        parts[-1]["carried"] = {"step": manifest["step"], "packed_on": manifest["cpu_model"],
-                                "unpacked_on": provenance.cpu_model(), "replay": replay}
+        parts[-1]["carried"] = {
+            "step": manifest["step"],
+            "packed_on": manifest["cpu_model"],
+            "unpacked_on": provenance.cpu_model(),
+            "replay": replay,
+        }
         parts_path.write_text(json.dumps(parts, indent=1) + "\n")
 
 
@@ -513,9 +598,12 @@ def resumable_steps(store: Path, run_ids: set[str], batches: bool = True) -> dic
     at: the members of every carry whose runs are all among ``run_ids`` (a carry resumes
     only whole, ``replicate.experiments.carried_tasks``); ``batches`` False: of carried
     runs only (an executor that trains one run per task starts a carried batch over)."""
-    return {run_id: int(manifest["step"]) for manifest in listing(store)
-            if set(manifest["members"]) <= run_ids
-            and (batches or manifest["kind"] != "batch") for run_id in manifest["members"]}
+    return {
+        run_id: int(manifest["step"])
+        for manifest in listing(store)
+        if set(manifest["members"]) <= run_ids and (batches or manifest["kind"] != "batch")
+        for run_id in manifest["members"]
+    }
 
 
 def listing(store: Path) -> list[dict[str, Any]]:
@@ -525,5 +613,8 @@ def listing(store: Path) -> list[dict[str, Any]]:
         return []
     for old in root.glob(".*.old"):
         _recover(root, old.name[1:].removesuffix(".old"))
-    return [json.loads((p / MANIFEST_FILE).read_text()) for p in sorted(root.iterdir())
-            if not p.name.startswith(".") and (p / MANIFEST_FILE).is_file()]
+    return [
+        json.loads((p / MANIFEST_FILE).read_text())
+        for p in sorted(root.iterdir())
+        if not p.name.startswith(".") and (p / MANIFEST_FILE).is_file()
+    ]

@@ -23,12 +23,24 @@ from typing import Any
 
 import numpy as np
 
-from replicate.stats import (CONFIDENCE, MeanEstimate, curve_area, holm, seed_matched_difference,
-                             seeds_to_decide, t_mean)
+from replicate.stats import (
+    CONFIDENCE,
+    MeanEstimate,
+    curve_area,
+    holm,
+    seed_matched_difference,
+    seeds_to_decide,
+    t_mean,
+)
 from replicate.templating import count_seeds
 
-MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = ("MountainCarContinuous-v0", "Hopper-v5",
-                                             "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = (
+    "MountainCarContinuous-v0",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "HalfCheetah-v5",
+    "Ant-v5",
+)
 MUJOCO = (HOPPER, WALKER, CHEETAH, ANT)
 MOUNTAINTOP = 90.0  # the paper's MountainCar success level
 NEAR_ZERO = 10.0  # |return| below this counts as "learned nothing" on MountainCar
@@ -40,8 +52,14 @@ SMALLEST_EFFECT = 0.10
 SMALLEST_INSTABILITY = 0.10  # instability is a fraction of a curve's range
 STUCK_FRACTION = 0.5  # a SAC seed is stuck when it ends below half of SAC's median seed
 ALPHA_ONE_SIDED = (1 - CONFIDENCE) / 2  # a one-sided test per side of a 95% interval
-LABELS = {"sac": "SAC", "ppo": "PPO", "ppo-bc": "PPO+BC", "ddpgfd": "DDPGfD",
-          "drl-eg": "DRL-EG", "drl-eg-gmm": "DRL-EG (GMM)"}
+LABELS = {
+    "sac": "SAC",
+    "ppo": "PPO",
+    "ppo-bc": "PPO+BC",
+    "ddpgfd": "DDPGfD",
+    "drl-eg": "DRL-EG",
+    "drl-eg-gmm": "DRL-EG (GMM)",
+}
 PAIRED = ("sac", "drl-eg")  # same seed, same initial weights: their differences are paired
 
 REPRODUCED, PARTLY, NOT_REPRODUCED = "reproduced", "partly reproduced", "not reproduced"
@@ -82,14 +100,18 @@ def instability(curve: np.ndarray) -> float:
     return float(drops / spread) if spread > 0 else 0.0
 
 
-def difference(a: Group, b: Group, values: Callable[[Group], np.ndarray],
-               what: str) -> MeanEstimate:
+def difference(
+    a: Group, b: Group, values: Callable[[Group], np.ndarray], what: str
+) -> MeanEstimate:
     """``values(a) - values(b)``: paired over shared seeds when a and b are SAC and DRL-EG
     (same seeds, same initial weights) or ran the same seeds, else Welch over all runs."""
     quantity = f"{where(a)}: {LABELS[a.algo]} minus {LABELS[b.algo]}, {what}"
-    return seed_matched_difference(dict(zip(a.seeds, values(a).tolist())),
-                                   dict(zip(b.seeds, values(b).tolist())), quantity,
-                                   pair={a.algo, b.algo} <= set(PAIRED))
+    return seed_matched_difference(
+        dict(zip(a.seeds, values(a).tolist())),
+        dict(zip(b.seeds, values(b).tolist())),
+        quantity,
+        pair={a.algo, b.algo} <= set(PAIRED),
+    )
 
 
 def where(group: Group) -> str:
@@ -133,12 +155,16 @@ class Check:
         est = self.estimate
         if self.within is not None:
             lo, hi = self.within
-            return {HOLDS: max(est.p_above(lo), est.p_below(hi)),
-                    FAILS: min(est.p_below(lo), est.p_above(hi))}
+            return {
+                HOLDS: max(est.p_above(lo), est.p_below(hi)),
+                FAILS: min(est.p_below(lo), est.p_above(hi)),
+            }
         p = {HOLDS: est.p_above(self.above), FAILS: est.p_below(self.above)}
         if self.smallest_effect:
-            p[EQUIVALENT] = max(est.p_above(self.above - self.smallest_effect),
-                                est.p_below(self.above + self.smallest_effect))
+            p[EQUIVALENT] = max(
+                est.p_above(self.above - self.smallest_effect),
+                est.p_below(self.above + self.smallest_effect),
+            )
         return p
 
     def distance(self) -> float:
@@ -155,13 +181,24 @@ class Check:
 
     def as_dict(self) -> dict[str, Any]:
         est = self.estimate
-        return {"what": self.what, "role": "primary" if self.primary else "secondary",
-                "estimate": est.value, "low": est.low, "high": est.high,
-                "method": est.label, "quantity": est.as_dict(),
-                "threshold": self.above, "band": list(self.within) if self.within else None,
-                "smallest_effect": self.smallest_effect, "verdict": self.state,
-                "p_adjusted": self.adjusted, "seeds_meeting": self.seeds_meeting,
-                "n": est.n, "not_testable": self.not_testable, "decide": self.decide}
+        return {
+            "what": self.what,
+            "role": "primary" if self.primary else "secondary",
+            "estimate": est.value,
+            "low": est.low,
+            "high": est.high,
+            "method": est.label,
+            "quantity": est.as_dict(),
+            "threshold": self.above,
+            "band": list(self.within) if self.within else None,
+            "smallest_effect": self.smallest_effect,
+            "verdict": self.state,
+            "p_adjusted": self.adjusted,
+            "seeds_meeting": self.seeds_meeting,
+            "n": est.n,
+            "not_testable": self.not_testable,
+            "decide": self.decide,
+        }
 
 
 def decide(checks: list[Check]) -> None:
@@ -181,9 +218,14 @@ def decide(checks: list[Check]) -> None:
             k = secondary.index(check)
             p = {o: families[o][k] for o in check.p_values()}
         check.adjusted = {o: float(v) for o, v in p.items()}
-        check.state = next((o for o in (EQUIVALENT, HOLDS, FAILS)
-                            if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED),
-                           INCONCLUSIVE)
+        check.state = next(
+            (
+                o
+                for o in (EQUIVALENT, HOLDS, FAILS)
+                if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED
+            ),
+            INCONCLUSIVE,
+        )
 
 
 def _hours(steps: int, rate: float, processes: int) -> str:
@@ -205,15 +247,22 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
     needed = seeds_to_decide(est, check.distance(), level)
     unit = "pairs" if est.method.startswith("paired") else "seeds"
     if needed is None:
-        text = ("no number of seeds at this budget: the estimate sits at what decides the "
-                "check; only a longer budget (where the effect may differ) can")
+        text = (
+            "no number of seeds at this budget: the estimate sits at what decides the "
+            "check; only a longer budget (where the effect may differ) can"
+        )
         return text, "no number of seeds at this budget; a longer budget might"
-    per_group = ([needed - est.n] * len(check.groups) if est.n_other is None
-                 else [needed - est.n, needed - est.n_other][:len(check.groups)])
+    per_group = (
+        [needed - est.n] * len(check.groups)
+        if est.n_other is None
+        else [needed - est.n, needed - est.n_other][: len(check.groups)]
+    )
     extra_runs = sum(max(0, k) for k in per_group)
-    text = (f"about {needed} {unit} (the smallest n whose {level * 100:.3g}% {est.method} is "
-            f"narrower than the distance {check.distance():.3g} to what decides it, at the "
-            "observed mean and spread)")
+    text = (
+        f"about {needed} {unit} (the smallest n whose {level * 100:.3g}% {est.method} is "
+        f"narrower than the distance {check.distance():.3g} to what decides it, at the "
+        "observed mean and spread)"
+    )
     short = f"about {needed} {unit}"
     budget = max((g.budget or 0) for g in check.groups) if check.groups else 0
     if extra_runs and budget:
@@ -224,14 +273,16 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
             if rates:
                 costs.append(f"about {_hours(steps, min(rates), processes)} on {machine}")
         cost = f"{extra_runs} more runs, {steps:,} env steps" + (
-            ", " + " or ".join(costs) if costs else "")
+            ", " + " or ".join(costs) if costs else ""
+        )
         text += f": {cost}" + (" at the rates the store's runs recorded" if costs else "")
         short += f": {cost}"
     return text, short
 
 
-def judge(claim_id: int, title: str, paper: str, checks: list[Check],
-          used: list[Group]) -> dict[str, Any]:
+def judge(
+    claim_id: int, title: str, paper: str, checks: list[Check], used: list[Group]
+) -> dict[str, Any]:
     """The claim's verdict from its primary checks (all must hold: an intersection-union
     test needs no correction), with the secondary checks listed."""
     decide(checks)
@@ -256,23 +307,41 @@ def judge(claim_id: int, title: str, paper: str, checks: list[Check],
         verdict = INCONCLUSIVE
     budgets = [g.budget for g in used if g.budget]
     seeds = [len(g.seeds) for g in used]
-    return {"id": claim_id, "title": title, "paper": paper, "verdict": verdict,
-            "steps": max(budgets) if budgets else None,
-            "seeds": [min(seeds), max(seeds)] if seeds else None,
-            "decides": shorts,
-            "primary": [c.what for c in primary],
-            "not_met": failing,
-            "parts": [c.as_dict() for c in checks],
-            "effect": primary[0].estimate.as_dict() if primary and not primary[0].not_testable
-            else None,
-            "algorithms": sorted({f"{LABELS[g.algo]} on {g.env_id} ({count_seeds(len(g.seeds))})"
-                                  for g in used})}
+    return {
+        "id": claim_id,
+        "title": title,
+        "paper": paper,
+        "verdict": verdict,
+        "steps": max(budgets) if budgets else None,
+        "seeds": [min(seeds), max(seeds)] if seeds else None,
+        "decides": shorts,
+        "primary": [c.what for c in primary],
+        "not_met": failing,
+        "parts": [c.as_dict() for c in checks],
+        "effect": primary[0].estimate.as_dict()
+        if primary and not primary[0].not_testable
+        else None,
+        "algorithms": sorted(
+            {f"{LABELS[g.algo]} on {g.env_id} ({count_seeds(len(g.seeds))})" for g in used}
+        ),
+    }
 
 
 def not_judged(claim_id: int, title: str, paper: str, why: str) -> dict[str, Any]:
-    return {"id": claim_id, "title": title, "paper": paper, "verdict": f"not judged: {why}",
-            "steps": None, "seeds": None, "decides": [], "primary": [], "not_met": [],
-            "parts": [], "effect": None, "algorithms": []}
+    return {
+        "id": claim_id,
+        "title": title,
+        "paper": paper,
+        "verdict": f"not judged: {why}",
+        "steps": None,
+        "seeds": None,
+        "decides": [],
+        "primary": [],
+        "not_met": [],
+        "parts": [],
+        "effect": None,
+        "algorithms": [],
+    }
 
 
 def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> str | None:
@@ -284,69 +353,115 @@ def _smallest_effect(env_id: str, demo_returns: dict[str, float]) -> float | Non
     return SMALLEST_EFFECT * abs(demo_returns[env_id]) if env_id in demo_returns else None
 
 
-def _mean_check(what: str, group: Group, above: float | None = None,
-                within: tuple[float, float] | None = None,
-                meets: Callable[[np.ndarray], np.ndarray] | None = None,
-                **kwargs: Any) -> Check:
+def _mean_check(
+    what: str,
+    group: Group,
+    above: float | None = None,
+    within: tuple[float, float] | None = None,
+    meets: Callable[[np.ndarray], np.ndarray] | None = None,
+    **kwargs: Any,
+) -> Check:
     est = t_mean(group.finals, f"{where(group)}: {LABELS[group.algo]}, mean final return")
-    return Check(what, est, above, within, seeds_meeting=int(meets(group.finals).sum())
-                 if meets else None, groups=(group,), **kwargs)
+    return Check(
+        what,
+        est,
+        above,
+        within,
+        seeds_meeting=int(meets(group.finals).sum()) if meets else None,
+        groups=(group,),
+        **kwargs,
+    )
 
 
-def _above_check(what: str, a: Group, b: Group, values: Callable[[Group], np.ndarray],
-                 quantity: str, smallest_effect: float | None, **kwargs: Any) -> Check:
+def _above_check(
+    what: str,
+    a: Group,
+    b: Group,
+    values: Callable[[Group], np.ndarray],
+    quantity: str,
+    smallest_effect: float | None,
+    **kwargs: Any,
+) -> Check:
     est = difference(a, b, values, quantity)
-    return Check(what, est, above=0.0, smallest_effect=smallest_effect, groups=(a, b),
-                 **kwargs)
+    return Check(what, est, above=0.0, smallest_effect=smallest_effect, groups=(a, b), **kwargs)
 
 
 PRIMARY_CHECKS = {
     1: "MountainCar: DRL-EG minus SAC, final return (paired), above 0",
     2: "Hopper and HalfCheetah: DRL-EG minus SAC, final return (paired), within +-10% of "
-       "SAC's return",
+    "SAC's return",
     3: "Walker2d and Ant: DRL-EG minus SAC, final return (paired), above 0",
     4: "Ant: instability of SAC minus DRL-EG's (paired), above 0",
     5: "Ant: on a seed where SAC is stuck, DRL-EG escapes (ends at least twice as high)",
 }
 
 
-def claim_1(groups: dict[tuple[str, str], Group],
-            demo_returns: dict[str, float]) -> dict[str, Any]:
+def claim_1(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]) -> dict[str, Any]:
     """MountainCar. Primary: DRL-EG ends above SAC (paired). Secondary: DRL-EG reaches the
     goal; SAC and PPO end near 0; PPO+BC and DDPGfD learn but end below DRL-EG."""
-    title = "MountainCarContinuous: only the demonstration-guided methods leave 0, and DRL-EG ends on top"
-    paper = "SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn but end below DRL-EG"
+    title = (
+        "MountainCarContinuous: only the demonstration-guided methods leave 0, "
+        "and DRL-EG ends on top"
+    )
+    paper = (
+        "SAC and PPO end near 0; DRL-EG reaches the goal; PPO+BC and DDPGfD learn "
+        "but end below DRL-EG"
+    )
     why = _need(groups, [(MOUNTAINCAR, "drl-eg"), (MOUNTAINCAR, "sac")])
     if why:
         return not_judged(1, title, paper, why)
     drl, sac = groups[(MOUNTAINCAR, "drl-eg")], groups[(MOUNTAINCAR, "sac")]
     effect = _smallest_effect(MOUNTAINCAR, demo_returns)
-    checks = [_above_check(PRIMARY_CHECKS[1], drl, sac, finals, "final return", effect,
-                           primary=True)]
+    checks = [
+        _above_check(PRIMARY_CHECKS[1], drl, sac, finals, "final return", effect, primary=True)
+    ]
     used = [drl, sac]
-    checks.append(_mean_check(f"DRL-EG final return above {MOUNTAINTOP:g}", drl,
-                              above=MOUNTAINTOP, meets=lambda f: f > MOUNTAINTOP))
+    checks.append(
+        _mean_check(
+            f"DRL-EG final return above {MOUNTAINTOP:g}",
+            drl,
+            above=MOUNTAINTOP,
+            meets=lambda f: f > MOUNTAINTOP,
+        )
+    )
     for algo in ("sac", "ppo"):
         if (MOUNTAINCAR, algo) in groups:
             g = groups[(MOUNTAINCAR, algo)]
             used.append(g)
-            checks.append(_mean_check(f"{LABELS[algo]} final return within +-{NEAR_ZERO:g}", g,
-                                      within=(-NEAR_ZERO, NEAR_ZERO),
-                                      meets=lambda f: np.abs(f) <= NEAR_ZERO))
+            checks.append(
+                _mean_check(
+                    f"{LABELS[algo]} final return within +-{NEAR_ZERO:g}",
+                    g,
+                    within=(-NEAR_ZERO, NEAR_ZERO),
+                    meets=lambda f: np.abs(f) <= NEAR_ZERO,
+                )
+            )
     for algo in ("ppo-bc", "ddpgfd"):
         if (MOUNTAINCAR, algo) in groups:
             g = groups[(MOUNTAINCAR, algo)]
             used.append(g)
-            checks.append(_mean_check(f"{LABELS[algo]} learns: final return above {NEAR_ZERO:g}",
-                                      g, above=NEAR_ZERO, meets=lambda f: f > NEAR_ZERO))
-            checks.append(_above_check(f"{LABELS[algo]} ends below DRL-EG: DRL-EG minus "
-                                       f"{LABELS[algo]} above 0", drl, g, finals,
-                                       "final return", effect))
+            checks.append(
+                _mean_check(
+                    f"{LABELS[algo]} learns: final return above {NEAR_ZERO:g}",
+                    g,
+                    above=NEAR_ZERO,
+                    meets=lambda f: f > NEAR_ZERO,
+                )
+            )
+            checks.append(
+                _above_check(
+                    f"{LABELS[algo]} ends below DRL-EG: DRL-EG minus {LABELS[algo]} above 0",
+                    drl,
+                    g,
+                    finals,
+                    "final return",
+                    effect,
+                )
+            )
     return judge(1, title, paper, checks, used)
 
 
-def claim_2(groups: dict[tuple[str, str], Group],
-            demo_returns: dict[str, float]) -> dict[str, Any]:
+def claim_2(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]) -> dict[str, Any]:
     """Hopper and HalfCheetah. Primary: DRL-EG minus SAC's final return within +-10% of
     SAC's mean final return on both envs (paired). Secondary: the same for the area under
     the curve."""
@@ -360,16 +475,26 @@ def claim_2(groups: dict[tuple[str, str], Group],
         drl, sac = groups[(env_id, "drl-eg")], groups[(env_id, "sac")]
         used += [drl, sac]
         margin = EQUIVALENCE_MARGIN * abs(float(np.mean(sac.finals)))
-        checks.append(Check(
-            f"{env_id}: DRL-EG minus SAC within +-{EQUIVALENCE_MARGIN:.0%} of SAC's return "
-            f"(+-{margin:.0f})", difference(drl, sac, finals, "final return"),
-            within=(-margin, margin), primary=True, groups=(drl, sac)))
+        checks.append(
+            Check(
+                f"{env_id}: DRL-EG minus SAC within +-{EQUIVALENCE_MARGIN:.0%} of SAC's return "
+                f"(+-{margin:.0f})",
+                difference(drl, sac, finals, "final return"),
+                within=(-margin, margin),
+                primary=True,
+                groups=(drl, sac),
+            )
+        )
         area_margin = EQUIVALENCE_MARGIN * abs(float(np.mean(sac.areas)))
-        checks.append(Check(
-            f"{env_id}: sample efficiency, area under the curve of DRL-EG minus SAC's within "
-            f"+-{EQUIVALENCE_MARGIN:.0%} of SAC's (+-{area_margin:.0f})",
-            difference(drl, sac, areas, "area under the curve"),
-            within=(-area_margin, area_margin), groups=(drl, sac)))
+        checks.append(
+            Check(
+                f"{env_id}: sample efficiency, area under the curve of DRL-EG minus SAC's within "
+                f"+-{EQUIVALENCE_MARGIN:.0%} of SAC's (+-{area_margin:.0f})",
+                difference(drl, sac, areas, "area under the curve"),
+                within=(-area_margin, area_margin),
+                groups=(drl, sac),
+            )
+        )
     return judge(2, title, paper, checks, used)
 
 
@@ -378,31 +503,40 @@ def published_reach(env_id: str, level: float, budget: int) -> tuple[str | None,
     None: one does), and the budget at which published SAC first reaches it."""
     from replicate.published import published_points
 
-    points = published_points(env_id, 10 ** 9)
+    points = published_points(env_id, 10**9)
     within = [p for p in points if p.steps <= budget]
     best = max(within, key=lambda p: p.mean, default=None)
     reaching = sorted((p for p in points if p.mean >= level), key=lambda p: p.steps)
-    later = (f"published SAC first reaches it at {reaching[0].steps:,} steps ({reaching[0].label}: "
-             f"{reaching[0].mean:.0f})" if reaching else
-             "no published SAC curve reaches it within the budgets published")
+    later = (
+        f"published SAC first reaches it at {reaching[0].steps:,} steps ({reaching[0].label}: "
+        f"{reaching[0].mean:.0f})"
+        if reaching
+        else "no published SAC curve reaches it within the budgets published"
+    )
     if best is None or best.mean >= level:
         return None, later
-    return (f"no published SAC reaches {level:.0f} by {budget:,} steps (best: {best.label}, "
-            f"{best.mean:.0f} at {best.steps:,}); {later}"), later
+    return (
+        f"no published SAC reaches {level:.0f} by {budget:,} steps (best: {best.label}, "
+        f"{best.mean:.0f} at {best.steps:,}); {later}"
+    ), later
 
 
-def claim_3(groups: dict[tuple[str, str], Group],
-            demo_returns: dict[str, float]) -> dict[str, Any]:
+def claim_3(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]) -> dict[str, Any]:
     """Walker2d and Ant. Primary: DRL-EG's final return above SAC's on both envs (paired).
     Secondary: above PPO, PPO+BC and DDPGfD (Welch), the same for the area under the curve,
     and a final return of at least 90% of the demonstrations' (not testable at a budget at
     which no published SAC reaches it)."""
     title = "Walker2d and Ant: DRL-EG beats every other algorithm and ends near the demonstrations"
-    paper = "DRL-EG outperforms all other RL and RLfD algorithms and almost reaches the demonstrations' return"
+    paper = (
+        "DRL-EG outperforms all other RL and RLfD algorithms and almost reaches the "
+        "demonstrations' return"
+    )
     why = _need(groups, [(e, a) for e in (WALKER, ANT) for a in ("sac", "drl-eg")])
     missing_demos = [e for e in (WALKER, ANT) if e not in demo_returns]
     if why or missing_demos:
-        return not_judged(3, title, paper, why or "no demonstrations on " + ", ".join(missing_demos))
+        return not_judged(
+            3, title, paper, why or "no demonstrations on " + ", ".join(missing_demos)
+        )
     checks: list[Check] = []
     used = []
     for env_id in (WALKER, ANT):
@@ -414,24 +548,49 @@ def claim_3(groups: dict[tuple[str, str], Group],
                 continue
             other = groups[(env_id, algo)]
             used.append(other)
-            what = (PRIMARY_CHECKS[3].split(": ", 1)[1].replace("Walker2d and Ant", env_id)
-                    if algo == "sac" else f"DRL-EG minus {LABELS[algo]}, final return, above 0")
-            checks.append(_above_check(f"{env_id}: {what}", drl, other, finals, "final return",
-                                       effect, primary=algo == "sac"))
-            checks.append(_above_check(
-                f"{env_id}: sample efficiency, area under the curve of DRL-EG minus "
-                f"{LABELS[algo]}'s above 0", drl, other, areas, "area under the curve", effect))
+            what = (
+                PRIMARY_CHECKS[3].split(": ", 1)[1].replace("Walker2d and Ant", env_id)
+                if algo == "sac"
+                else f"DRL-EG minus {LABELS[algo]}, final return, above 0"
+            )
+            checks.append(
+                _above_check(
+                    f"{env_id}: {what}",
+                    drl,
+                    other,
+                    finals,
+                    "final return",
+                    effect,
+                    primary=algo == "sac",
+                )
+            )
+            checks.append(
+                _above_check(
+                    f"{env_id}: sample efficiency, area under the curve of DRL-EG minus "
+                    f"{LABELS[algo]}'s above 0",
+                    drl,
+                    other,
+                    areas,
+                    "area under the curve",
+                    effect,
+                )
+            )
         level = NEAR_DEMOS * demo_returns[env_id]
         blocked, _ = published_reach(env_id, level, drl.budget or 0)
-        checks.append(_mean_check(f"{env_id}: DRL-EG final return at least {NEAR_DEMOS:.0%} of "
-                                  f"the demonstrations' {demo_returns[env_id]:.0f}", drl,
-                                  above=level, meets=lambda f, level=level: f >= level,
-                                  not_testable=blocked))
+        checks.append(
+            _mean_check(
+                f"{env_id}: DRL-EG final return at least {NEAR_DEMOS:.0%} of "
+                f"the demonstrations' {demo_returns[env_id]:.0f}",
+                drl,
+                above=level,
+                meets=lambda f, level=level: f >= level,
+                not_testable=blocked,
+            )
+        )
     return judge(3, title, paper, checks, used)
 
 
-def claim_4(groups: dict[tuple[str, str], Group],
-            demo_returns: dict[str, float]) -> dict[str, Any]:
+def claim_4(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]) -> dict[str, Any]:
     """Ant. Primary: SAC's instability above DRL-EG's (paired; instability of a run is the
     sum of its curve's drops over its range). Secondary: DDPGfD's above DRL-EG's (Welch)."""
     title = "Ant: SAC and DDPGfD train unstably; DRL-EG is more stable"
@@ -444,24 +603,38 @@ def claim_4(groups: dict[tuple[str, str], Group],
     for algo in ("sac", "ddpgfd"):
         other = groups[(ANT, algo)]
         used.append(other)
-        what = (PRIMARY_CHECKS[4] if algo == "sac" else
-                f"Ant: instability of {LABELS[algo]} minus DRL-EG's, above 0")
-        checks.append(_above_check(what, other, drl, instabilities, "instability",
-                                   SMALLEST_INSTABILITY, primary=algo == "sac"))
+        what = (
+            PRIMARY_CHECKS[4]
+            if algo == "sac"
+            else f"Ant: instability of {LABELS[algo]} minus DRL-EG's, above 0"
+        )
+        checks.append(
+            _above_check(
+                what,
+                other,
+                drl,
+                instabilities,
+                "instability",
+                SMALLEST_INSTABILITY,
+                primary=algo == "sac",
+            )
+        )
     return judge(4, title, paper, checks, used)
 
 
 PAPER_FIG4_SEEDS = 4  # the paired seeds of the paper's Fig. 4
 
 
-def claim_5(groups: dict[tuple[str, str], Group],
-            demo_returns: dict[str, float]) -> dict[str, Any]:
+def claim_5(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]) -> dict[str, Any]:
     """Fig. 4, Ant with paired seeds. Primary: on a seed where SAC is stuck (ends below half
     of SAC's median seed), DRL-EG escapes (ends at least twice as high as SAC on that
     seed); not testable while no SAC seed is stuck. Secondary: DRL-EG ends at least as high
     as SAC (paired difference above 0, with the smallest effect of interest)."""
     title = "Fig. 4, Ant with paired seeds: DRL-EG escapes a local optimum where SAC stays"
-    paper = "same seeds and initial weights: SAC stays in a local optimum on a seed where DRL-EG escapes; DRL-EG ends at least as high"
+    paper = (
+        "same seeds and initial weights: SAC stays in a local optimum on a seed where "
+        "DRL-EG escapes; DRL-EG ends at least as high"
+    )
     why = _need(groups, [(ANT, "drl-eg"), (ANT, "sac")])
     if why:
         return not_judged(5, title, paper, why)
@@ -477,22 +650,37 @@ def claim_5(groups: dict[tuple[str, str], Group],
     budget = sac.budget or 0
     blocked = None
     if not stuck.any():
-        blocked = (f"no SAC seed is stuck: on all {count_seeds(len(common), 'paired ')} SAC ends "
-                   f"above half of its median seed ({level:.0f}) by {budget:,} steps; "
-                   "the steps by which SAC seeds stall on Ant are not known from these runs "
-                   "(the paper's Fig. 4 budget is not stated in its text)")
-    counts = t_mean(escaped.astype(float), "Ant: share of paired seeds on which SAC is stuck "
-                    "and DRL-EG escapes")
-    primary = Check(PRIMARY_CHECKS[5], counts, above=0.0, primary=True,
-                    seeds_meeting=int(escaped.sum()), not_testable=blocked, groups=(drl, sac))
-    paired = _above_check(f"Ant, {count_seeds(len(common), 'paired ')}: DRL-EG minus SAC, final "
-                          "return, above 0", drl, sac, finals, "final return",
-                          _smallest_effect(ANT, demo_returns),
-                          seeds_meeting=int((a > b).sum()))
+        blocked = (
+            f"no SAC seed is stuck: on all {count_seeds(len(common), 'paired ')} SAC ends "
+            f"above half of its median seed ({level:.0f}) by {budget:,} steps; "
+            "the steps by which SAC seeds stall on Ant are not known from these runs "
+            "(the paper's Fig. 4 budget is not stated in its text)"
+        )
+    counts = t_mean(
+        escaped.astype(float), "Ant: share of paired seeds on which SAC is stuck and DRL-EG escapes"
+    )
+    primary = Check(
+        PRIMARY_CHECKS[5],
+        counts,
+        above=0.0,
+        primary=True,
+        seeds_meeting=int(escaped.sum()),
+        not_testable=blocked,
+        groups=(drl, sac),
+    )
+    paired = _above_check(
+        f"Ant, {count_seeds(len(common), 'paired ')}: DRL-EG minus SAC, final return, above 0",
+        drl,
+        sac,
+        finals,
+        "final return",
+        _smallest_effect(ANT, demo_returns),
+        seeds_meeting=int((a > b).sum()),
+    )
     claim = judge(5, title, paper, [primary, paired], [drl, sac])
     if not blocked:  # decided by counting seeds, not by an interval
         claim["parts"][0]["verdict"] = HOLDS if escaped.any() else FAILS
-        claim["verdict"] = (REPRODUCED if escaped.any() else NOT_REPRODUCED)
+        claim["verdict"] = REPRODUCED if escaped.any() else NOT_REPRODUCED
         if escaped.any() and claim["parts"][1]["verdict"] == FAILS:
             claim["verdict"] = PARTLY
     claim["paired"] = claim["effect"] = paired.estimate.as_dict()
@@ -506,31 +694,37 @@ CLAIM_ENVS = {1: (MOUNTAINCAR,), 2: (HOPPER, CHEETAH), 3: (WALKER, ANT), 4: (ANT
 # ``{steps}`` is the budget of the claim's env.
 BUDGET_NOTES = {
     2: "At {steps:,} steps SAC is still learning on Hopper and HalfCheetah, so equal curves "
-       "here say that guidance does not slow SAC early; they cannot say the two end equal.",
+    "here say that guidance does not slow SAC early; they cannot say the two end equal.",
     3: "At {steps:,} steps a lead of DRL-EG on Walker2d and Ant shows faster early learning "
-       "(the paper's sample-efficiency claim); reaching the demonstrations' return may need "
-       "a longer budget.",
+    "(the paper's sample-efficiency claim); reaching the demonstrations' return may need "
+    "a longer budget.",
     4: "Instability is measured over {steps:,} steps: drops late in training, which the "
-       "paper's curves show on Ant, fall outside this budget.",
+    "paper's curves show on Ant, fall outside this budget.",
     5: "At {steps:,} steps a seed that SAC has not yet escaped from may still escape later; "
-       "a paired lead of DRL-EG here is evidence of earlier escape, not of a different end.",
+    "a paired lead of DRL-EG here is evidence of earlier escape, not of a different end.",
 }
 PAPER_MUJOCO_STEPS = 1_000_000  # not stated in the paper's text; its MuJoCo axes suggest 1M
 
 
 def budget_note(claim_id: int, groups: dict[tuple[str, str], Group]) -> str | None:
     """The claim's budget sentence when its runs are shorter than the paper's, else None."""
-    budgets = [g.budget for (env, _), g in groups.items()
-               if env in CLAIM_ENVS.get(claim_id, ()) and g.budget is not None]
+    budgets = [
+        g.budget
+        for (env, _), g in groups.items()
+        if env in CLAIM_ENVS.get(claim_id, ()) and g.budget is not None
+    ]
     if claim_id not in BUDGET_NOTES or not budgets or max(budgets) >= PAPER_MUJOCO_STEPS:
         return None
     return BUDGET_NOTES[claim_id].format(steps=max(budgets))
 
 
-def judge_claims(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
-                 meaningful: bool, judged_envs: set[str] | None = None,
-                 fig4_groups: dict[tuple[str, str], Group] | None = None
-                 ) -> list[dict[str, Any]]:
+def judge_claims(
+    groups: dict[tuple[str, str], Group],
+    demo_returns: dict[str, float],
+    meaningful: bool,
+    judged_envs: set[str] | None = None,
+    fig4_groups: dict[tuple[str, str], Group] | None = None,
+) -> list[dict[str, Any]]:
     """Every claim's verdict: claims 1-4 from ``groups`` (Fig. 3's runs), claim 5 from
     ``fig4_groups`` (Fig. 4's paired runs; None: not judged). A profile whose numbers mean
     nothing judges none; a claim on envs outside ``judged_envs`` (the profile's Fig. 3

@@ -1,4 +1,4 @@
-"""Command line: ``python -m replicate {train,demos,expert,fig3,fig4,ablate-threshold,report,table1,carry,algos,envs} ...``."""
+"""Command line: ``python -m replicate COMMAND ...`` (``--help`` lists the commands)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,10 @@ from replicate.profiles import PROFILES
 DEFAULT_STORE = Path("runs")
 SMOKE_STORE = Path("runs-smoke")
 PROFILE_NAMES = tuple(PROFILES)
-STORE_HELP = ("run store directory (default: $REPLICATE_STORE, else runs/, the committed "
-              "store, or runs-smoke/ for the smoke profile)")
+STORE_HELP = (
+    "run store directory (default: $REPLICATE_STORE, else runs/, the committed "
+    "store, or runs-smoke/ for the smoke profile)"
+)
 # Exit status of a command stopped at its --time-limit (sysexits' EX_TEMPFAIL: try again),
 # so that a job script can tell "resume me" from success and from failure.
 TIME_LIMIT_EXIT = 75
@@ -31,17 +33,22 @@ class _HelpFormatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        if ("default" in text.lower() or not action.option_strings
-                or action.default in (None, False, [], argparse.SUPPRESS)):
+        if (
+            "default" in text.lower()
+            or not action.option_strings
+            or action.default in (None, False, [], argparse.SUPPRESS)
+        ):
             return text
         return text + " (default: %(default)s)"
 
 
 def _profile_help(lead: str = "budget profile") -> str:
     """Every profile with its description, for the --profile options."""
-    described = [f"{name}: {profile.summary}"
-                 + ("; its numbers mean nothing." if not profile.meaningful else ".")
-                 for name, profile in PROFILES.items()]
+    described = [
+        f"{name}: {profile.summary}"
+        + ("; its numbers mean nothing." if not profile.meaningful else ".")
+        for name, profile in PROFILES.items()
+    ]
     return f"{lead}. " + " ".join(described)
 
 
@@ -69,11 +76,15 @@ def parse_time_limit(text: str) -> float:
             pos += 1
     # a bare number is seconds only alone: "2h30" might mean minutes
     if not units or pos != len(cleaned) or (len(units) > 1 and "" in units):
-        raise HarnessError(f"--time-limit: cannot read '{text}' as a duration",
-                           "write it like 90m, 2h, 1h30m or 5400 (seconds)")
+        raise HarnessError(
+            f"--time-limit: cannot read '{text}' as a duration",
+            "write it like 90m, 2h, 1h30m or 5400 (seconds)",
+        )
     if negative or seconds <= 0:
-        raise HarnessError(f"--time-limit must be positive, got '{text}'",
-                           "pass a duration like 90m or 2h, or leave the option out")
+        raise HarnessError(
+            f"--time-limit must be positive, got '{text}'",
+            "pass a duration like 90m or 2h, or leave the option out",
+        )
     return seconds
 
 
@@ -91,11 +102,15 @@ def _joined_time_limit(argv: list[str]) -> list[str]:
 
 
 def _add_time_limit_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--time-limit", default=None, metavar="DURATION",
-                        help="stop cleanly after this long (90m, 2h, 1h30m, or seconds): "
-                             "finished runs are kept, running ones checkpoint at their next "
-                             "episode end and stop, the rest do not start; the same command "
-                             f"resumes them. Exit status {TIME_LIMIT_EXIT}; no limit by default")
+    parser.add_argument(
+        "--time-limit",
+        default=None,
+        metavar="DURATION",
+        help="stop cleanly after this long (90m, 2h, 1h30m, or seconds): "
+        "finished runs are kept, running ones checkpoint at their next "
+        "episode end and stop, the rest do not start; the same command "
+        f"resumes them. Exit status {TIME_LIMIT_EXIT}; no limit by default",
+    )
 
 
 def default_store(profile: str | None) -> Path:
@@ -112,8 +127,7 @@ def _seed_list(text: str) -> list[int]:
             first, _, last = part.partition("-")
             seeds.extend(range(int(first), int(last or first) + 1))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a seed list: '{text}' (e.g. 1-8 or 1,4,7)"
-                                         ) from None
+        raise argparse.ArgumentTypeError(f"not a seed list: '{text}' (e.g. 1-8 or 1,4,7)") from None
     if not seeds:
         raise argparse.ArgumentTypeError(f"no seeds in '{text}'")
     return seeds
@@ -127,8 +141,9 @@ def _parse_overrides(pairs: list[str]) -> dict:
     for pair in pairs:
         key, sep, raw = pair.partition("=")
         if not sep or not key:
-            raise HarnessError(f"--set expects KEY=VALUE, got '{pair}'",
-                               "write it like --set guide_threshold=0.1")
+            raise HarnessError(
+                f"--set expects KEY=VALUE, got '{pair}'", "write it like --set guide_threshold=0.1"
+            )
         try:
             overrides[key] = ast.literal_eval(raw)
         except (ValueError, SyntaxError):
@@ -136,282 +151,496 @@ def _parse_overrides(pairs: list[str]) -> dict:
     return overrides
 
 
-DEVICE_HELP = ("where algorithms with a GPU path (the SAC family: SAC, twin-Q SAC, DRL-EG, "
-               "IBRL, JSRL, RLPD) train: auto takes the GPU when torch sees one; cuda fails "
-               "without one. The others train on CPU. Curves are reproducible bit for bit on "
-               "CPU only")
+DEVICE_HELP = (
+    "where algorithms with a GPU path (the SAC family: SAC, twin-Q SAC, DRL-EG, "
+    "IBRL, JSRL, RLPD) train: auto takes the GPU when torch sees one; cuda fails "
+    "without one. The others train on CPU. Curves are reproducible bit for bit on "
+    "CPU only"
+)
 
 
 def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
-    parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                        help=DEVICE_HELP)
+    parser.add_argument(
+        "--device", default="auto", choices=["auto", "cpu", "cuda"], help=DEVICE_HELP
+    )
     if grid:
-        parser.add_argument("--gpu-workers", type=int, default=None,
-                            help="with --device auto and a GPU: only this many workers train "
-                                 "on it, the others on the CPU cores. One GPU serves about two "
-                                 "runs at once, so 2 is faster on a many-core machine, but "
-                                 "which runs land on the GPU then depends on scheduling "
-                                 "(default: every worker on the GPU)")
-        parser.add_argument("--batch", type=int, default=None, metavar="N",
-                            help="train up to N runs that differ only in seed together in "
-                                 "one process (SAC, twin-Q SAC, DRL-EG, RLPD, IBRL; the others "
-                                 "train one per process). Default: on a GPU as many as fit its "
-                                 "memory (up to 64), on CPU none")
+        parser.add_argument(
+            "--gpu-workers",
+            type=int,
+            default=None,
+            help="with --device auto and a GPU: only this many workers train "
+            "on it, the others on the CPU cores. One GPU serves about two "
+            "runs at once, so 2 is faster on a many-core machine, but "
+            "which runs land on the GPU then depends on scheduling "
+            "(default: every worker on the GPU)",
+        )
+        parser.add_argument(
+            "--batch",
+            type=int,
+            default=None,
+            metavar="N",
+            help="train up to N runs that differ only in seed together in "
+            "one process (SAC, twin-Q SAC, DRL-EG, RLPD, IBRL; the others "
+            "train one per process). Default: on a GPU as many as fit its "
+            "memory (up to 64), on CPU none",
+        )
 
 
 def _add_cell_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--algos", nargs="+", default=None, metavar="ALGO",
-                        help="train only these algorithms' cells of the grid (the report is "
-                             "still written from every run of the grid in the store)")
-    parser.add_argument("--envs", nargs="+", default=None, metavar="ENV",
-                        help="train only these environments' cells of the grid")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="print the runs that would train, per cell, with their env steps "
-                             "and estimated minutes; train and write nothing")
+    parser.add_argument(
+        "--algos",
+        nargs="+",
+        default=None,
+        metavar="ALGO",
+        help="train only these algorithms' cells of the grid (the report is "
+        "still written from every run of the grid in the store)",
+    )
+    parser.add_argument(
+        "--envs",
+        nargs="+",
+        default=None,
+        metavar="ENV",
+        help="train only these environments' cells of the grid",
+    )
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the runs that would train, per cell, with their env steps "
+        "and estimated minutes; train and write nothing",
+    )
 
 
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m replicate",
-        description="Replication harness for DRL-EG (SAC with demonstration-guided exploration).")
+        description="Replication harness for DRL-EG (SAC with demonstration-guided exploration).",
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     train = sub.add_parser(
-        "train", help="train one run into the run store",
+        "train",
+        help="train one run into the run store",
         description="Train one run (algorithm x env x seed x budget) into the run store, "
-                    "with a progress bar. A run whose resolved spec is already complete in "
-                    "the store is not trained again.",
-        formatter_class=_HelpFormatter)
-    train.add_argument("--algo", required=True,
-                       help="algorithm name; `python -m replicate algos` lists them")
-    train.add_argument("--env", required=True,
-                       help="environment id, e.g. MountainCarContinuous-v0 or Hopper-v5; "
-                            "`python -m replicate envs` lists them")
-    train.add_argument("--steps", type=int, required=True,
-                       help="training budget in environment steps (> 0)")
-    train.add_argument("--seed", type=int, default=0,
-                       help="seed of env, weights, exploration and replay sampling")
-    train.add_argument("--eval-interval", type=int, default=None,
-                       help="env steps between evaluations (default: steps/20, at least 1)")
-    train.add_argument("--eval-episodes", type=int, default=5,
-                       help="deterministic-policy test episodes per evaluation")
-    train.add_argument("--demos", default=None,
-                       help="demonstration file (.npz) for algorithms that use demonstrations; "
-                            "default: the committed file of the env")
-    train.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                       help="override a hyperparameter, e.g. --set guide_threshold=0.1 "
-                            "(repeatable; `python -m replicate algos` shows them)")
+        "with a progress bar. A run whose resolved spec is already complete in "
+        "the store is not trained again.",
+        formatter_class=_HelpFormatter,
+    )
+    train.add_argument(
+        "--algo", required=True, help="algorithm name; `python -m replicate algos` lists them"
+    )
+    train.add_argument(
+        "--env",
+        required=True,
+        help="environment id, e.g. MountainCarContinuous-v0 or Hopper-v5; "
+        "`python -m replicate envs` lists them",
+    )
+    train.add_argument(
+        "--steps", type=int, required=True, help="training budget in environment steps (> 0)"
+    )
+    train.add_argument(
+        "--seed", type=int, default=0, help="seed of env, weights, exploration and replay sampling"
+    )
+    train.add_argument(
+        "--eval-interval",
+        type=int,
+        default=None,
+        help="env steps between evaluations (default: steps/20, at least 1)",
+    )
+    train.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=5,
+        help="deterministic-policy test episodes per evaluation",
+    )
+    train.add_argument(
+        "--demos",
+        default=None,
+        help="demonstration file (.npz) for algorithms that use demonstrations; "
+        "default: the committed file of the env",
+    )
+    train.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a hyperparameter, e.g. --set guide_threshold=0.1 "
+        "(repeatable; `python -m replicate algos` shows them)",
+    )
     train.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    train.add_argument("--checkpoint-interval", type=int, default=10_000,
-                       help="env steps between checkpoints (at the next episode end; 0: "
-                            "none); an interrupted run resumes from its last one")
+    train.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints (at the next episode end; 0: "
+        "none); an interrupted run resumes from its last one",
+    )
     _add_device_argument(train)
 
     demos = sub.add_parser(
-        "demos", help="make a demonstration file from the harness's own expert",
+        "demos",
+        help="make a demonstration file from the harness's own expert",
         description="Roll out the expert of an env and save (s, a) pairs with provenance.",
-        formatter_class=_HelpFormatter)
+        formatter_class=_HelpFormatter,
+    )
     which = demos.add_mutually_exclusive_group(required=True)
     which.add_argument("--env", help="environment id")
-    which.add_argument("--all", action="store_true",
-                       help="every env with an expert (the rule or a committed SAC expert); "
-                            "lists the envs skipped for want of one")
+    which.add_argument(
+        "--all",
+        action="store_true",
+        help="every env with an expert (the rule or a committed SAC expert); "
+        "lists the envs skipped for want of one",
+    )
     demos.add_argument("--pairs", type=int, default=1000, help="number of (s, a) pairs")
     demos.add_argument("--seed", type=int, default=0, help="seed of the expert rollouts")
-    demos.add_argument("--out", type=Path, default=None,
-                       help="output file (default: the package's committed demonstration path)")
+    demos.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output file (default: the package's committed demonstration path)",
+    )
 
     expert = sub.add_parser(
-        "expert", help="train (or resume) the harness's SAC expert of an env",
+        "expert",
+        help="train (or resume) the harness's SAC expert of an env",
         description="Train the SAC expert of an env with checkpoints in --root/<env>/; "
-                    "started again, it resumes from the last checkpoint. The policy with the "
-                    "best evaluation is exported, with its provenance, to the package's "
-                    "expert file, from which `demos` rolls out demonstrations.",
-        formatter_class=_HelpFormatter)
+        "started again, it resumes from the last checkpoint. The policy with the "
+        "best evaluation is exported, with its provenance, to the package's "
+        "expert file, from which `demos` rolls out demonstrations.",
+        formatter_class=_HelpFormatter,
+    )
     expert.add_argument("--env", required=True, help="environment id, e.g. Hopper-v5")
-    expert.add_argument("--steps", type=int, default=1_000_000,
-                        help="training budget in env steps (the SAC paper's 1M)")
+    expert.add_argument(
+        "--steps",
+        type=int,
+        default=1_000_000,
+        help="training budget in env steps (the SAC paper's 1M)",
+    )
     expert.add_argument("--seed", type=int, default=0, help="seed of the expert run")
-    expert.add_argument("--root", type=Path, default=Path("experts"),
-                        help="work directory for checkpoints and progress")
-    expert.add_argument("--eval-interval", type=int, default=10_000,
-                        help="env steps between evaluations (the best one is kept)")
-    expert.add_argument("--checkpoint-interval", type=int, default=10_000,
-                        help="env steps between checkpoints (taken at the next episode end)")
-    expert.add_argument("--algo", choices=("sac", "sac-twin-q"), default=None,
-                        help="the trainer: the paper's V-network SAC, or twin-Q SAC with a "
-                             "learned temperature (default: sac, but sac-twin-q for Ant-v5)")
-    expert.add_argument("--threads", type=int, default=1,
-                        help="torch threads for the updates (an expert training alone may use "
-                             "every core; results then differ in rounding from 1 thread)")
+    expert.add_argument(
+        "--root",
+        type=Path,
+        default=Path("experts"),
+        help="work directory for checkpoints and progress",
+    )
+    expert.add_argument(
+        "--eval-interval",
+        type=int,
+        default=10_000,
+        help="env steps between evaluations (the best one is kept)",
+    )
+    expert.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints (taken at the next episode end)",
+    )
+    expert.add_argument(
+        "--algo",
+        choices=("sac", "sac-twin-q"),
+        default=None,
+        help="the trainer: the paper's V-network SAC, or twin-Q SAC with a "
+        "learned temperature (default: sac, but sac-twin-q for Ant-v5)",
+    )
+    expert.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch threads for the updates (an expert training alone may use "
+        "every core; results then differ in rounding from 1 thread)",
+    )
     _add_device_argument(expert)
-    expert.add_argument("--export-only", action="store_true",
-                        help="do not train; export the best policy found so far")
-    expert.add_argument("--seeds", type=_seed_list, default=None,
-                        help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and "
-                             "keep the best member; not resumed (meant for a GPU)")
-    expert.add_argument("--minutes", type=float, default=None,
-                        help="with --seeds: stop after this many minutes of training")
+    expert.add_argument(
+        "--export-only",
+        action="store_true",
+        help="do not train; export the best policy found so far",
+    )
+    expert.add_argument(
+        "--seeds",
+        type=_seed_list,
+        default=None,
+        help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and "
+        "keep the best member; not resumed (meant for a GPU)",
+    )
+    expert.add_argument(
+        "--minutes",
+        type=float,
+        default=None,
+        help="with --seeds: stop after this many minutes of training",
+    )
 
     fig3 = sub.add_parser(
-        "fig3", help="train what Fig. 3 needs and write its HTML report",
+        "fig3",
+        help="train what Fig. 3 needs and write its HTML report",
         description="Run the Fig. 3 grid for a profile (only runs missing from the store are "
-                    "trained), then write the self-contained HTML report.",
-        formatter_class=_HelpFormatter)
-    fig3.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help=_profile_help())
-    fig3.add_argument("--seeds", type=int, default=None,
-                      help="number of seeds (default: the profile's)")
-    fig3.add_argument("--workers", type=int, default=None,
-                      help="parallel training processes (default: one per core)")
+        "trained), then write the self-contained HTML report.",
+        formatter_class=_HelpFormatter,
+    )
+    fig3.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
+    fig3.add_argument(
+        "--seeds", type=int, default=None, help="number of seeds (default: the profile's)"
+    )
+    fig3.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="parallel training processes (default: one per core)",
+    )
     fig3.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     _add_device_argument(fig3, grid=True)
-    fig3.add_argument("--executor", default="local", choices=["local", "ray"],
-                      help="local processes, or tasks on a running Ray cluster (--address)")
-    fig3.add_argument("--address", default=None,
-                      help="HOST:PORT of the Ray head for --executor ray; the run store must "
-                           "be on a filesystem every node sees")
-    fig3.add_argument("--checkpoint-interval", type=int, default=10_000,
-                      help="env steps between checkpoints of each run (0: none); an "
-                           "interrupted figure resumes its unfinished runs from them")
+    fig3.add_argument(
+        "--executor",
+        default="local",
+        choices=["local", "ray"],
+        help="local processes, or tasks on a running Ray cluster (--address)",
+    )
+    fig3.add_argument(
+        "--address",
+        default=None,
+        help="HOST:PORT of the Ray head for --executor ray; the run store must "
+        "be on a filesystem every node sees",
+    )
+    fig3.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints of each run (0: none); an "
+        "interrupted figure resumes its unfinished runs from them",
+    )
     _add_time_limit_argument(fig3)
-    fig3.add_argument("--out", type=Path, default=None,
-                      help="report directory (default: reports/fig3 for quick, "
-                           "reports/<profile>/fig3 otherwise)")
+    fig3.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: reports/fig3 for quick, reports/<profile>/fig3 otherwise)",
+    )
     _add_cell_arguments(fig3)
 
     fig4 = sub.add_parser(
-        "fig4", help="train what Fig. 4 needs (paired SAC and DRL-EG) and write its report",
+        "fig4",
+        help="train what Fig. 4 needs (paired SAC and DRL-EG) and write its report",
         description="Train SAC and DRL-EG on the same seeds (identical initial weights) on "
-                    "Ant-v5, or --env, and write reports/fig4/index.html: one panel per "
-                    "seed, paired differences, claim 5.",
-        formatter_class=_HelpFormatter)
-    fig4.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help=_profile_help())
+        "Ant-v5, or --env, and write reports/fig4/index.html: one panel per "
+        "seed, paired differences, claim 5.",
+        formatter_class=_HelpFormatter,
+    )
+    fig4.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
     fig4.add_argument("--env", default="Ant-v5", help="environment (the paper's is Ant-v5)")
     fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
-    fig4.add_argument("--workers", type=int, default=None,
-                      help="parallel training processes (default: one per core)")
+    fig4.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="parallel training processes (default: one per core)",
+    )
     _add_device_argument(fig4, grid=True)
-    fig4.add_argument("--executor", default="local", choices=["local", "ray"],
-                      help="local processes, or tasks on a running Ray cluster (--address)")
+    fig4.add_argument(
+        "--executor",
+        default="local",
+        choices=["local", "ray"],
+        help="local processes, or tasks on a running Ray cluster (--address)",
+    )
     fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    fig4.add_argument("--checkpoint-interval", type=int, default=10_000,
-                      help="env steps between checkpoints of each run or batch (0: none); "
-                           "a batch's holds every member's replay, so give large ones more")
+    fig4.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints of each run or batch (0: none); "
+        "a batch's holds every member's replay, so give large ones more",
+    )
     fig4.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    fig4.add_argument("--out", type=Path, default=None,
-                      help="report directory (default: reports/fig4 for quick, "
-                           "reports/<profile>/fig4 otherwise)")
-    fig4.add_argument("--dry-run", action="store_true",
-                      help="print the runs that would train, with their env steps and "
-                           "estimated minutes; train and write nothing")
+    fig4.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: reports/fig4 for quick, reports/<profile>/fig4 otherwise)",
+    )
+    fig4.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the runs that would train, with their env steps and "
+        "estimated minutes; train and write nothing",
+    )
     _add_time_limit_argument(fig4)
 
     ablate = sub.add_parser(
-        "ablate-threshold", help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
+        "ablate-threshold",
+        help="sweep DRL-EG's threshold T2 (and sigma) with optuna",
         description="Train DRL-EG over a grid of T2 (and sigma) values, one optuna trial "
-                    "per point, at the Fig. 3 profile's budget and seeds, and write "
-                    "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
-                    "workers can share one --storage.",
-        formatter_class=_HelpFormatter)
-    ablate.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                        help=_profile_help())
-    ablate.add_argument("--seeds", type=int, default=None,
-                        help="number of seeds (default: the profile's)")
-    ablate.add_argument("--thresholds", type=float, nargs="+", default=None,
-                        help="T2 values (default: the profile's grid, 0 and 'always' included)")
-    ablate.add_argument("--sigmas", type=float, nargs="+", default=None,
-                        help="guider noise values (default: the profile's grid)")
-    ablate.add_argument("--storage", default=None,
-                        help="optuna storage URL (default: SQLite in the run store)")
-    ablate.add_argument("--workers", type=int, default=None,
-                        help="parallel training processes (default: one per core)")
+        "per point, at the Fig. 3 profile's budget and seeds, and write "
+        "reports/ablate-threshold/index.html. Stopped sweeps resume; several "
+        "workers can share one --storage.",
+        formatter_class=_HelpFormatter,
+    )
+    ablate.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
+    ablate.add_argument(
+        "--seeds", type=int, default=None, help="number of seeds (default: the profile's)"
+    )
+    ablate.add_argument(
+        "--thresholds",
+        type=float,
+        nargs="+",
+        default=None,
+        help="T2 values (default: the profile's grid, 0 and 'always' included)",
+    )
+    ablate.add_argument(
+        "--sigmas",
+        type=float,
+        nargs="+",
+        default=None,
+        help="guider noise values (default: the profile's grid)",
+    )
+    ablate.add_argument(
+        "--storage", default=None, help="optuna storage URL (default: SQLite in the run store)"
+    )
+    ablate.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="parallel training processes (default: one per core)",
+    )
     _add_device_argument(ablate, grid=True)
-    ablate.add_argument("--executor", default="local", choices=["local", "ray"],
-                        help="local processes, or tasks on a running Ray cluster (--address)")
+    ablate.add_argument(
+        "--executor",
+        default="local",
+        choices=["local", "ray"],
+        help="local processes, or tasks on a running Ray cluster (--address)",
+    )
     ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    ablate.add_argument("--env", default="MountainCarContinuous-v0",
-                        help="the env to sweep: MountainCar (absolute T2 grid), or Ant-v5 or "
-                             "Walker2d-v5 (T2 at 1, 4, 16, 64 times the median demonstration-"
-                             "state spacing, and always; 3 seeds)")
-    ablate.add_argument("--checkpoint-interval", type=int, default=10_000,
-                        help="env steps between checkpoints of each run or batch (0: none); "
-                             "a batch's holds every member's replay, so give large ones more")
+    ablate.add_argument(
+        "--env",
+        default="MountainCarContinuous-v0",
+        help="the env to sweep: MountainCar (absolute T2 grid), or Ant-v5 or "
+        "Walker2d-v5 (T2 at 1, 4, 16, 64 times the median demonstration-"
+        "state spacing, and always; 3 seeds)",
+    )
+    ablate.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints of each run or batch (0: none); "
+        "a batch's holds every member's replay, so give large ones more",
+    )
     ablate.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    ablate.add_argument("--out", type=Path, default=None,
-                        help="report directory (default: reports/ablate-threshold[-<env>] "
-                             "for quick, under reports/<profile>/ otherwise)")
-    ablate.add_argument("--dry-run", action="store_true",
-                        help="print the runs the whole sweep would train (SAC and every "
-                             "point), with their env steps and estimated minutes; train and "
-                             "write nothing")
+    ablate.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: reports/ablate-threshold[-<env>] "
+        "for quick, under reports/<profile>/ otherwise)",
+    )
+    ablate.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the runs the whole sweep would train (SAC and every "
+        "point), with their env steps and estimated minutes; train and "
+        "write nothing",
+    )
     _add_time_limit_argument(ablate)
 
     rlfd = sub.add_parser(
-        "compare-rlfd", help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
+        "compare-rlfd",
+        help="DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD: reports/rlfd",
         description="Train the comparison grid (only runs missing from the store) on the "
-                    "profile's tasks and write reports/rlfd/index.html: normalised scores, IQM, "
-                    "probability of improvement, performance profiles, sample-efficiency "
-                    "curves and a verdict per method and task.",
-        formatter_class=_HelpFormatter)
-    rlfd.add_argument("--profile", default="quick", choices=PROFILE_NAMES,
-                      help=_profile_help("budget profile (here quick is MountainCar; reduced "
-                                         "adds the sparse dm-control tasks, Hopper and Ant)"))
+        "profile's tasks and write reports/rlfd/index.html: normalised scores, IQM, "
+        "probability of improvement, performance profiles, sample-efficiency "
+        "curves and a verdict per method and task.",
+        formatter_class=_HelpFormatter,
+    )
+    rlfd.add_argument(
+        "--profile",
+        default="quick",
+        choices=PROFILE_NAMES,
+        help=_profile_help(
+            "budget profile (here quick is MountainCar; reduced "
+            "adds the sparse dm-control tasks, Hopper and Ant)"
+        ),
+    )
     rlfd.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
-    rlfd.add_argument("--workers", type=int, default=None,
-                      help="parallel training processes (default: one per core)")
+    rlfd.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="parallel training processes (default: one per core)",
+    )
     rlfd.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    rlfd.add_argument("--out", type=Path, default=None,
-                      help="report directory (default: reports/rlfd for quick, "
-                           "reports/<profile>/rlfd otherwise)")
-    rlfd.add_argument("--checkpoint-interval", type=int, default=10_000,
-                      help="env steps between checkpoints of a run")
+    rlfd.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: reports/rlfd for quick, reports/<profile>/rlfd otherwise)",
+    )
+    rlfd.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints of a run",
+    )
     _add_device_argument(rlfd, grid=True)
     _add_cell_arguments(rlfd)
     _add_time_limit_argument(rlfd)
 
     report = sub.add_parser(
-        "report", help="rebuild reports from the run store without training",
+        "report",
+        help="rebuild reports from the run store without training",
         description="Rebuild every report of a profile (Fig. 3, Fig. 4, the threshold "
-                    "ablation, Table 1) from the runs already in the store; nothing is trained. "
-                    "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
-                    "are when the store holds none of their runs.",
-        formatter_class=_HelpFormatter)
-    report.add_argument("--profile", default=None, choices=PROFILE_NAMES,
-                        help=_profile_help("which profile's reports to rebuild (default: "
-                                           "every profile but smoke whose runs are in the "
-                                           "store)"))
-    report.add_argument("--seeds", type=int, default=None,
-                        help="number of seeds (default: the profile's)")
+        "ablation, Table 1) from the runs already in the store; nothing is trained. "
+        "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
+        "are when the store holds none of their runs.",
+        formatter_class=_HelpFormatter,
+    )
+    report.add_argument(
+        "--profile",
+        default=None,
+        choices=PROFILE_NAMES,
+        help=_profile_help(
+            "which profile's reports to rebuild (default: "
+            "every profile but smoke whose runs are in the "
+            "store)"
+        ),
+    )
+    report.add_argument(
+        "--seeds", type=int, default=None, help="number of seeds (default: the profile's)"
+    )
     report.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    report.add_argument("--out", type=Path, default=None,
-                        help="parent directory of the reports (default: reports/ for quick, "
-                             "reports/<profile>/ otherwise; with several profiles, "
-                             "<out>/<profile>/<name>)")
+    report.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="parent directory of the reports (default: reports/ for quick, "
+        "reports/<profile>/ otherwise; with several profiles, "
+        "<out>/<profile>/<name>)",
+    )
 
     table1 = sub.add_parser(
-        "table1", help="write Table 1 (env dims, paper beside harness, demonstrations)",
+        "table1",
+        help="write Table 1 (env dims, paper beside harness, demonstrations)",
         description="Write reports/table1/index.html from the environment table, checked "
-                    "against the live envs, and the committed demonstration files.",
-        formatter_class=_HelpFormatter)
-    table1.add_argument("--out", type=Path, default=Path("reports/table1"),
-                        help="report directory")
+        "against the live envs, and the committed demonstration files.",
+        formatter_class=_HelpFormatter,
+    )
+    table1.add_argument("--out", type=Path, default=Path("reports/table1"), help="report directory")
 
     carry = sub.add_parser(
-        "carry", help="pack the store's unfinished runs and batches small enough to commit",
+        "carry",
+        help="pack the store's unfinished runs and batches small enough to commit",
         description="Pack every checkpoint of the store's unfinished runs and seed batches "
-                    "into <store>/carry/ without its replay buffer (rebuilt from the actions "
-                    "when unpacked, and checked against its SHA-256), so that it can be "
-                    "committed and resumed by the same command later, on this machine or "
-                    "another. Training may go on while it packs.",
-        formatter_class=_HelpFormatter)
+        "into <store>/carry/ without its replay buffer (rebuilt from the actions "
+        "when unpacked, and checked against its SHA-256), so that it can be "
+        "committed and resumed by the same command later, on this machine or "
+        "another. Training may go on while it packs.",
+        formatter_class=_HelpFormatter,
+    )
     carry.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    carry.add_argument("--list", action="store_true",
-                       help="list what is carried instead of packing")
-    carry.add_argument("--workers", type=int, default=1,
-                       help="checkpoints packed at once (each rebuilds its replay on a core "
-                            "to check it)")
+    carry.add_argument(
+        "--list", action="store_true", help="list what is carried instead of packing"
+    )
+    carry.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="checkpoints packed at once (each rebuilds its replay on a core to check it)",
+    )
 
     sub.add_parser("algos", help="list algorithms and their default hyperparameters")
     sub.add_parser("envs", help="list environments and their spec table")
@@ -425,32 +654,47 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from replicate.spec import RunSpec
 
     eval_interval = args.eval_interval or max(1, args.steps // 20)
-    spec = RunSpec(algo=args.algo, env_id=args.env, seed=args.seed, total_steps=args.steps,
-                   eval_interval=eval_interval, eval_episodes=args.eval_episodes,
-                   hyperparameters=_parse_overrides(args.overrides), demos=args.demos)
+    spec = RunSpec(
+        algo=args.algo,
+        env_id=args.env,
+        seed=args.seed,
+        total_steps=args.steps,
+        eval_interval=eval_interval,
+        eval_episodes=args.eval_episodes,
+        hyperparameters=_parse_overrides(args.overrides),
+        demos=args.demos,
+    )
     prepared = prepare(spec)
-    with tqdm(total=spec.total_steps, unit="step", desc=prepared.run_id[:48],
-              dynamic_ncols=True) as bar:
-        run = execute(prepared, args.store, on_steps=bar.update,
-                      checkpoint_interval=args.checkpoint_interval, device=args.device)
+    with tqdm(
+        total=spec.total_steps, unit="step", desc=prepared.run_id[:48], dynamic_ncols=True
+    ) as bar:
+        run = execute(
+            prepared,
+            args.store,
+            on_steps=bar.update,
+            checkpoint_interval=args.checkpoint_interval,
+            device=args.device,
+        )
     prov = run.provenance
     print(f"run: {run.path}")
-    print(f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
-          f"{prov['env_steps_per_s']} env steps/s on {prov['device']}")
+    print(
+        f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
+        f"{prov['env_steps_per_s']} env steps/s on {prov['device']}"
+    )
     return 0
 
 
 def _cmd_demos(args: argparse.Namespace) -> int:
-    from replicate.demos import default_demo_path, make_demos, save_demos
-
     from envs import ENV_SPECS
-    from replicate.demos import RULE_EXPERTS
+    from replicate.demos import RULE_EXPERTS, default_demo_path, make_demos, save_demos
     from replicate.errors import HarnessError
     from replicate.experts import expert_path
 
     if args.all and args.out:
-        raise HarnessError("--out names one file; it cannot go with --all",
-                           "drop --out (each env gets its committed path) or pass --env")
+        raise HarnessError(
+            "--out names one file; it cannot go with --all",
+            "drop --out (each env gets its committed path) or pass --env",
+        )
     if args.all:
         env_ids = [e for e in ENV_SPECS if e in RULE_EXPERTS or expert_path(e).is_file()]
         skipped = [e for e in ENV_SPECS if e not in env_ids]
@@ -462,9 +706,11 @@ def _cmd_demos(args: argparse.Namespace) -> int:
         demos = make_demos(env_id, n_pairs=args.pairs, seed=args.seed)
         path = save_demos(args.out or default_demo_path(env_id), demos)
         meta = demos.metadata
-        print(f"wrote {path}: {meta['n_pairs']} pairs, expert return "
-              f"{meta['expert_return_mean']:.2f} +- {meta['expert_return_std']:.2f} over "
-              f"{meta['expert_episodes']} episodes, sha256 {meta['content_sha256'][:12]}")
+        print(
+            f"wrote {path}: {meta['n_pairs']} pairs, expert return "
+            f"{meta['expert_return_mean']:.2f} +- {meta['expert_return_std']:.2f} over "
+            f"{meta['expert_episodes']} episodes, sha256 {meta['content_sha256'][:12]}"
+        )
     return 0
 
 
@@ -475,32 +721,60 @@ def _cmd_expert(args: argparse.Namespace) -> int:
     from replicate.experts import export_expert, train_expert, train_expert_batch
 
     if args.minutes is not None and (args.seeds is None or args.minutes <= 0):
-        raise HarnessError("--minutes limits a seed batch: it needs --seeds and a positive "
-                           f"value, got {args.minutes}", "pass --seeds 1-8 --minutes 8")
+        raise HarnessError(
+            "--minutes limits a seed batch: it needs --seeds and a positive "
+            f"value, got {args.minutes}",
+            "pass --seeds 1-8 --minutes 8",
+        )
     if args.export_only:
         path = export_expert(args.env, args.root)
     elif args.seeds is not None:
         total = args.steps * len(args.seeds)
-        with tqdm(total=total, unit="step", desc=f"expert batch {args.env}",
-                  dynamic_ncols=True, mininterval=2.0) as bar:
-            path = train_expert_batch(args.env, args.steps, args.seeds, args.root,
-                                      eval_interval=args.eval_interval, on_steps=bar.update,
-                                      algo=args.algo, device=args.device,
-                                      time_limit_s=None if args.minutes is None
-                                      else 60 * args.minutes)
+        with tqdm(
+            total=total,
+            unit="step",
+            desc=f"expert batch {args.env}",
+            dynamic_ncols=True,
+            mininterval=2.0,
+        ) as bar:
+            path = train_expert_batch(
+                args.env,
+                args.steps,
+                args.seeds,
+                args.root,
+                eval_interval=args.eval_interval,
+                on_steps=bar.update,
+                algo=args.algo,
+                device=args.device,
+                time_limit_s=None if args.minutes is None else 60 * args.minutes,
+            )
     else:
-        with tqdm(total=args.steps, unit="step", desc=f"expert {args.env}",
-                  dynamic_ncols=True, mininterval=2.0) as bar:
-            path = train_expert(args.env, args.steps, args.root, args.seed,
-                                eval_interval=args.eval_interval,
-                                checkpoint_interval=args.checkpoint_interval,
-                                on_steps=bar.update, algo=args.algo,
-                                threads=args.threads, device=args.device)
+        with tqdm(
+            total=args.steps,
+            unit="step",
+            desc=f"expert {args.env}",
+            dynamic_ncols=True,
+            mininterval=2.0,
+        ) as bar:
+            path = train_expert(
+                args.env,
+                args.steps,
+                args.root,
+                args.seed,
+                eval_interval=args.eval_interval,
+                checkpoint_interval=args.checkpoint_interval,
+                on_steps=bar.update,
+                algo=args.algo,
+                threads=args.threads,
+                device=args.device,
+            )
     import torch
 
     meta = torch.load(path, weights_only=True)["metadata"]
-    print(f"expert: {path}: best evaluation {meta['best_eval_return']:.1f} at step "
-          f"{meta['best_step']:,} of {meta['steps_trained']:,}; wall {meta['wall_time_s']:.0f} s")
+    print(
+        f"expert: {path}: best evaluation {meta['best_eval_return']:.1f} at step "
+        f"{meta['best_step']:,} of {meta['steps_trained']:,}; wall {meta['wall_time_s']:.0f} s"
+    )
     return 0
 
 
@@ -508,11 +782,22 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     from replicate.experiments import run_figure3
 
     out = args.out or _default_out(args.profile)
-    report = run_figure3(profile=args.profile, seeds=args.seeds, store=args.store, out_dir=out,
-                         workers=args.workers, checkpoint_interval=args.checkpoint_interval,
-                         executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers, batch=args.batch,
-                         algos=args.algos, envs=args.envs, dry_run=args.dry_run)
+    report = run_figure3(
+        profile=args.profile,
+        seeds=args.seeds,
+        store=args.store,
+        out_dir=out,
+        workers=args.workers,
+        checkpoint_interval=args.checkpoint_interval,
+        executor=args.executor,
+        address=args.address,
+        device=args.device,
+        gpu_workers=args.gpu_workers,
+        batch=args.batch,
+        algos=args.algos,
+        envs=args.envs,
+        dry_run=args.dry_run,
+    )
     if report is not None:
         print(f"report: {report}")
     return 0
@@ -527,11 +812,21 @@ def _default_out(profile: str) -> Path:
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from replicate.experiments import run_figure4
 
-    report = run_figure4(profile=args.profile, env_id=args.env, seeds=args.seeds,
-                         store=args.store, out_dir=args.out, workers=args.workers,
-                         executor=args.executor, address=args.address, device=args.device,
-                         gpu_workers=args.gpu_workers, batch=args.batch,
-                         checkpoint_interval=args.checkpoint_interval, dry_run=args.dry_run)
+    report = run_figure4(
+        profile=args.profile,
+        env_id=args.env,
+        seeds=args.seeds,
+        store=args.store,
+        out_dir=args.out,
+        workers=args.workers,
+        executor=args.executor,
+        address=args.address,
+        device=args.device,
+        gpu_workers=args.gpu_workers,
+        batch=args.batch,
+        checkpoint_interval=args.checkpoint_interval,
+        dry_run=args.dry_run,
+    )
     if report is not None:
         print(f"report: {report}")
     return 0
@@ -540,15 +835,24 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 def _cmd_ablate(args: argparse.Namespace) -> int:
     from replicate.ablation import run_threshold_ablation
 
-    report = run_threshold_ablation(profile=args.profile, seeds=args.seeds, store=args.store,
-                                    out_dir=args.out, storage=args.storage,
-                                    workers=args.workers, thresholds=args.thresholds,
-                                    sigmas=args.sigmas, executor=args.executor,
-                                    address=args.address, device=args.device,
-                                    gpu_workers=args.gpu_workers, batch=args.batch,
-                                    env_id=args.env,
-                                    checkpoint_interval=args.checkpoint_interval,
-                                    dry_run=args.dry_run)
+    report = run_threshold_ablation(
+        profile=args.profile,
+        seeds=args.seeds,
+        store=args.store,
+        out_dir=args.out,
+        storage=args.storage,
+        workers=args.workers,
+        thresholds=args.thresholds,
+        sigmas=args.sigmas,
+        executor=args.executor,
+        address=args.address,
+        device=args.device,
+        gpu_workers=args.gpu_workers,
+        batch=args.batch,
+        env_id=args.env,
+        checkpoint_interval=args.checkpoint_interval,
+        dry_run=args.dry_run,
+    )
     if report is not None:
         print(f"report: {report}")
     return 0
@@ -557,26 +861,37 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
 def _cmd_rlfd(args: argparse.Namespace) -> int:
     from replicate.rlfd import run_rlfd
 
-    report = run_rlfd(profile=args.profile, seeds=args.seeds, store=args.store,
-                      out_dir=args.out, workers=args.workers,
-                      checkpoint_interval=args.checkpoint_interval, device=args.device,
-                      batch=args.batch, algos=args.algos, envs=args.envs,
-                      dry_run=args.dry_run)
+    report = run_rlfd(
+        profile=args.profile,
+        seeds=args.seeds,
+        store=args.store,
+        out_dir=args.out,
+        workers=args.workers,
+        checkpoint_interval=args.checkpoint_interval,
+        device=args.device,
+        batch=args.batch,
+        algos=args.algos,
+        envs=args.envs,
+        dry_run=args.dry_run,
+    )
     if report is not None:
         print(f"report: {report}")
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from replicate.ablation import (ABLATION_ENV, MUJOCO_ABLATION_ENVS, ablation_report_name,
-                                    rebuild_threshold_ablation)
+    from replicate.ablation import (
+        ABLATION_ENV,
+        MUJOCO_ABLATION_ENVS,
+        ablation_report_name,
+        rebuild_threshold_ablation,
+    )
     from replicate.demos import default_demo_path
     from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
+    from replicate.profiles import report_dir
     from replicate.report import write_unless_fewer
     from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
-
-    from replicate.profiles import report_dir
 
     profiles = [args.profile] if args.profile else [p for p in PROFILE_NAMES if p != "smoke"]
 
@@ -597,8 +912,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
             return ""
         written, note = write_unless_fewer(path, args.store, build)
         if written is None:
-            return note or (f"{path}: no runs of the {profile} profile in {args.store}; "
-                            "left as it is")
+            return note or (
+                f"{path}: no runs of the {profile} profile in {args.store}; left as it is"
+            )
         return f"report: {written}" + (f" ({note})" if note else "")
 
     not_written: set[str] = set()
@@ -608,20 +924,41 @@ def _cmd_report(args: argparse.Namespace) -> int:
             print(line)
 
     for profile in profiles:
-        report_line(rebuild(profile, "fig3", lambda out: rebuild_figure3(
-            profile=profile, seeds=args.seeds, store=args.store, out_dir=out)))
-        report_line(rebuild(profile, "fig4", lambda out: rebuild_figure4(
-            profile, FIG4_ENV, None, args.store, out)
-            if default_demo_path(FIG4_ENV).is_file() else None))
+        report_line(
+            rebuild(
+                profile,
+                "fig3",
+                lambda out: rebuild_figure3(
+                    profile=profile, seeds=args.seeds, store=args.store, out_dir=out
+                ),
+            )
+        )
+        report_line(
+            rebuild(
+                profile,
+                "fig4",
+                lambda out: (
+                    rebuild_figure4(profile, FIG4_ENV, None, args.store, out)
+                    if default_demo_path(FIG4_ENV).is_file()
+                    else None
+                ),
+            )
+        )
         report_line(rebuild(profile, "rlfd", lambda out: rebuild_rlfd(profile, args.store, out)))
         for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS):
-            report_line(rebuild(profile, ablation_report_name(env_id),
-                          lambda out: rebuild_threshold_ablation(profile, args.store, out,
-                                                                 env_id)))
+            report_line(
+                rebuild(
+                    profile,
+                    ablation_report_name(env_id),
+                    lambda out: rebuild_threshold_ablation(profile, args.store, out, env_id),
+                )
+            )
     if not_written:
         names = " or ".join(sorted(not_written))
-        print(f"reports of the {names} profile that were never written are left out "
-              f"(they would share the quick profile's runs); pass --profile to write them")
+        print(
+            f"reports of the {names} profile that were never written are left out "
+            f"(they would share the quick profile's runs); pass --profile to write them"
+        )
     table1 = write_table1_report(args.out / "table1" if args.out else Path("reports/table1"))
     print(f"report: {table1}")
     from replicate.frontdoor import write_front_door
@@ -643,20 +980,25 @@ def _cmd_carry(args: argparse.Namespace) -> int:
 
     if not args.list:
         if args.workers < 1:
-            raise HarnessError(f"--workers must be at least 1, got {args.workers}",
-                               "pass --workers 1 or more")
+            raise HarnessError(
+                f"--workers must be at least 1, got {args.workers}", "pass --workers 1 or more"
+            )
         packed, skipped = carry.pack_all(args.store, progress=True, workers=args.workers)
         for item in packed:
-            print(f"carried {item.name}: step {item.step:,}, {item.members} run(s), "
-                  f"{item.bytes / 2**20:.1f} MiB")
+            print(
+                f"carried {item.name}: step {item.step:,}, {item.members} run(s), "
+                f"{item.bytes / 2**20:.1f} MiB"
+            )
         for line in skipped:
             print(f"not carried: {line}")
         if not packed and not skipped:
             print(f"no unfinished checkpoint in {args.store}")
     for manifest in carry.listing(args.store):
-        print(f"{carry.carry_root(args.store) / manifest['name']}: {manifest['kind']} at step "
-              f"{manifest['step']:,} of {', '.join(manifest['members'])} (packed "
-              f"{manifest['packed_utc']} on {manifest['cpu_model']})")
+        print(
+            f"{carry.carry_root(args.store) / manifest['name']}: {manifest['kind']} at step "
+            f"{manifest['step']:,} of {', '.join(manifest['members'])} (packed "
+            f"{manifest['packed_utc']} on {manifest['cpu_model']})"
+        )
     return 0
 
 
@@ -666,8 +1008,11 @@ def _cmd_algos(args: argparse.Namespace) -> int:
     from baselines.registry import algorithms
 
     for name, algo in sorted(algorithms().items()):
-        notes = [note for note, applies in (("uses demonstrations", algo.needs_demos),
-                                            ("GPU path", algo.gpu)) if applies]
+        notes = [
+            note
+            for note, applies in (("uses demonstrations", algo.needs_demos), ("GPU path", algo.gpu))
+            if applies
+        ]
         suffix = f" ({', '.join(notes)})" if notes else ""
         print(f"{name}: {algo.summary}{suffix}")
         for f in dataclasses.fields(algo.config_cls):
@@ -681,14 +1026,27 @@ def _cmd_envs(args: argparse.Namespace) -> int:
     print(f"{'env id':42} {'obs':>4} {'act':>4} {'limit':>6}  reward  paper")
     for s in ENV_SPECS.values():
         paper = f"{s.paper_env_id} ({s.paper_obs_dim}/{s.paper_act_dim})" if s.paper_env_id else "-"
-        print(f"{s.env_id:42} {s.obs_dim:>4} {s.act_dim:>4} {s.max_episode_steps:>6}  "
-              f"{s.reward_kind:6}  {paper}")
+        print(
+            f"{s.env_id:42} {s.obs_dim:>4} {s.act_dim:>4} {s.max_episode_steps:>6}  "
+            f"{s.reward_kind:6}  {paper}"
+        )
     return 0
 
 
-COMMANDS = {"compare-rlfd": _cmd_rlfd, "train": _cmd_train, "demos": _cmd_demos, "expert": _cmd_expert, "fig3": _cmd_fig3, "fig4": _cmd_fig4,
-            "report": _cmd_report, "table1": _cmd_table1, "ablate-threshold": _cmd_ablate,
-            "algos": _cmd_algos, "envs": _cmd_envs, "carry": _cmd_carry}
+COMMANDS = {
+    "compare-rlfd": _cmd_rlfd,
+    "train": _cmd_train,
+    "demos": _cmd_demos,
+    "expert": _cmd_expert,
+    "fig3": _cmd_fig3,
+    "fig4": _cmd_fig4,
+    "report": _cmd_report,
+    "table1": _cmd_table1,
+    "ablate-threshold": _cmd_ablate,
+    "algos": _cmd_algos,
+    "envs": _cmd_envs,
+    "carry": _cmd_carry,
+}
 
 
 FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1")
@@ -697,8 +1055,13 @@ FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1")
 def _refreshing_front_door(args: argparse.Namespace, code: int) -> int:
     """After a figure command wrote into reports/ (no --out, a profile that means
     something), refresh the front door reports/index.html from the reports there."""
-    if (code == 0 and args.command in FIGURE_COMMANDS and getattr(args, "out", None) is None
-            and getattr(args, "profile", "quick") != "smoke" and Path("reports").is_dir()):
+    if (
+        code == 0
+        and args.command in FIGURE_COMMANDS
+        and getattr(args, "out", None) is None
+        and getattr(args, "profile", "quick") != "smoke"
+        and Path("reports").is_dir()
+    ):
         from replicate.frontdoor import write_front_door
 
         print(f"front door: {write_front_door(Path('reports'))}")
@@ -721,16 +1084,21 @@ def main(argv: list[str] | None = None) -> int:
         with time_limit(time.time() + limit):
             return _refreshing_front_door(args, COMMANDS[args.command](args))
     except TimeLimitStop as stop:
-        print(f"time limit reached ({args.time_limit}): {stop}; run the same command again "
-              f"to resume: {shlex.join(['python', '-m', 'replicate', *argv])}",
-              file=sys.stderr)
+        print(
+            f"time limit reached ({args.time_limit}): {stop}; run the same command again "
+            f"to resume: {shlex.join(['python', '-m', 'replicate', *argv])}",
+            file=sys.stderr,
+        )
         return TIME_LIMIT_EXIT
     except HarnessError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: complete runs are kept in the store; run the same command again "
-              "to finish the rest", file=sys.stderr)
+        print(
+            "interrupted: complete runs are kept in the store; run the same command again "
+            "to finish the rest",
+            file=sys.stderr,
+        )
         return 130
 
 

@@ -94,10 +94,13 @@ def save_demos(path: Path, demos: Demonstrations) -> Path:
     os.close(fd)
     try:
         with open(tmp, "wb") as handle:
-            arrays = {name: np.asarray(values, dtype=np.float32)
-                      for name, values in demos.arrays().items()}
-            np.savez_compressed(handle, **arrays,
-                                metadata=np.array(json.dumps(metadata, indent=1, sort_keys=True)))
+            arrays = {
+                name: np.asarray(values, dtype=np.float32)
+                for name, values in demos.arrays().items()
+            }
+            np.savez_compressed(
+                handle, **arrays, metadata=np.array(json.dumps(metadata, indent=1, sort_keys=True))
+            )
         os.chmod(tmp, 0o644)  # mkstemp makes it private; a demonstration file is shared
         os.replace(tmp, path)
     finally:
@@ -113,8 +116,10 @@ def load_demos(path: Path | str, env_id: str) -> Demonstrations:
     if env_id in RULE_EXPERTS:
         regenerate = f"regenerate it with `python -m replicate demos --env {env_id} --out {path}`"
     else:
-        regenerate = (f"pass --demos PATH to a valid demonstration file for {env_id} "
-                      "(the harness has no expert for this env yet)")
+        regenerate = (
+            f"pass --demos PATH to a valid demonstration file for {env_id} "
+            "(the harness has no expert for this env yet)"
+        )
     if not path.is_file():
         raise DemoError(f"demonstration file {path} not found", regenerate)
     try:
@@ -126,50 +131,78 @@ def load_demos(path: Path | str, env_id: str) -> Demonstrations:
             metadata = json.loads(str(data["metadata"]))
             present = [name for name in TRANSITION_ARRAYS if name in data.files]
             if present and len(present) != len(TRANSITION_ARRAYS):
-                raise DemoError(f"demonstration file {path} holds {present} but not all of "
-                                f"{list(TRANSITION_ARRAYS)}", regenerate)
+                raise DemoError(
+                    f"demonstration file {path} holds {present} but not all of "
+                    f"{list(TRANSITION_ARRAYS)}",
+                    regenerate,
+                )
             transitions = {name: data[name] for name in present}
     except DemoError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
-        raise DemoError(f"demonstration file {path} is malformed or truncated "
-                        f"({type(exc).__name__}: {exc})".replace("\n", " "), regenerate) from None
+        raise DemoError(
+            f"demonstration file {path} is malformed or truncated "
+            f"({type(exc).__name__}: {exc})".replace("\n", " "),
+            regenerate,
+        ) from None
 
     spec = env_spec(env_id)
     if metadata.get("env_id") != env_id:
-        raise DemoError(f"demonstration file {path} is for env '{metadata.get('env_id')}', "
-                        f"not '{env_id}'", f"pass the demonstrations of {env_id}, or {regenerate}")
+        raise DemoError(
+            f"demonstration file {path} is for env '{metadata.get('env_id')}', not '{env_id}'",
+            f"pass the demonstrations of {env_id}, or {regenerate}",
+        )
     if observations.ndim != 2 or actions.ndim != 2 or len(observations) != len(actions):
-        raise DemoError(f"demonstration file {path} has arrays of shapes {observations.shape} "
-                        f"and {actions.shape}; expected (n, obs_dim) and (n, act_dim)", regenerate)
+        raise DemoError(
+            f"demonstration file {path} has arrays of shapes {observations.shape} "
+            f"and {actions.shape}; expected (n, obs_dim) and (n, act_dim)",
+            regenerate,
+        )
     if observations.shape[1] != spec.obs_dim or actions.shape[1] != spec.act_dim:
-        raise DemoError(f"demonstration file {path} has obs/action dims "
-                        f"{observations.shape[1]}/{actions.shape[1]} but {env_id} has "
-                        f"{spec.obs_dim}/{spec.act_dim}", regenerate)
+        raise DemoError(
+            f"demonstration file {path} has obs/action dims "
+            f"{observations.shape[1]}/{actions.shape[1]} but {env_id} has "
+            f"{spec.obs_dim}/{spec.act_dim}",
+            regenerate,
+        )
     if len(observations) == 0:
         raise DemoError(f"demonstration file {path} holds no pairs", regenerate)
     if transitions:
-        n, expected = len(observations), {"rewards": (len(observations),),
-                                          "next_observations": observations.shape,
-                                          "terminated": (len(observations),),
-                                          "truncated": (len(observations),)}
+        n, expected = (
+            len(observations),
+            {
+                "rewards": (len(observations),),
+                "next_observations": observations.shape,
+                "terminated": (len(observations),),
+                "truncated": (len(observations),),
+            },
+        )
         for name, shape in expected.items():
             if transitions[name].shape != shape:
-                raise DemoError(f"demonstration file {path} has {name} of shape "
-                                f"{transitions[name].shape}, expected {shape} for {n} pairs",
-                                regenerate)
+                raise DemoError(
+                    f"demonstration file {path} has {name} of shape "
+                    f"{transitions[name].shape}, expected {shape} for {n} pairs",
+                    regenerate,
+                )
     if not all(np.isfinite(a).all() for a in (observations, actions, *transitions.values())):
         raise DemoError(f"demonstration file {path} contains NaN or inf values", regenerate)
     if metadata.get("n_pairs") != len(observations):
-        raise DemoError(f"demonstration file {path} declares {metadata.get('n_pairs')} pairs "
-                        f"but holds {len(observations)}", regenerate)
-    transitions = {name: np.asarray(values, dtype=np.float32)
-                   for name, values in transitions.items()}
-    demos = Demonstrations(observations.astype(np.float32), actions.astype(np.float32), metadata,
-                           **transitions)
+        raise DemoError(
+            f"demonstration file {path} declares {metadata.get('n_pairs')} pairs "
+            f"but holds {len(observations)}",
+            regenerate,
+        )
+    transitions = {
+        name: np.asarray(values, dtype=np.float32) for name, values in transitions.items()
+    }
+    demos = Demonstrations(
+        observations.astype(np.float32), actions.astype(np.float32), metadata, **transitions
+    )
     if metadata.get("content_sha256") != demos.sha256:
-        raise DemoError(f"demonstration file {path} does not match its content hash "
-                        "(edited or corrupted)", regenerate)
+        raise DemoError(
+            f"demonstration file {path} does not match its content hash (edited or corrupted)",
+            regenerate,
+        )
     if not np.isfinite(metadata.get("expert_return_mean", np.nan)):
         raise DemoError(f"demonstration file {path} has no finite expert_return_mean", regenerate)
     return demos
@@ -180,17 +213,26 @@ def mountaincar_rule(obs: np.ndarray) -> np.ndarray:
     return np.array([-0.5 if obs[1] < 0 else 0.5], dtype=np.float32)
 
 
-def rollout_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
-                  description: str, min_episodes: int = 1,
-                  extra_metadata: dict[str, Any] | None = None) -> Demonstrations:
+def rollout_demos(
+    env_id: str,
+    rule,
+    n_pairs: int,
+    seed: int,
+    command: str,
+    description: str,
+    min_episodes: int = 1,
+    extra_metadata: dict[str, Any] | None = None,
+) -> Demonstrations:
     """Roll whole episodes of ``rule`` until ``n_pairs`` pairs and ``min_episodes`` episodes
     exist; keep the first ``n_pairs`` pairs.
 
     The expert return is measured over every episode rolled, all of them complete.
     """
     if n_pairs <= 0:
-        raise DemoError(f"number of demonstration pairs must be positive, got {n_pairs}",
-                        "pass --pairs 1000 (the paper's number)")
+        raise DemoError(
+            f"number of demonstration pairs must be positive, got {n_pairs}",
+            "pass --pairs 1000 (the paper's number)",
+        )
     env_seed = DEMO_SEED_OFFSET + seed
     env = make_env(env_id, seed=env_seed)
     observations, actions, episode_returns = [], [], []
@@ -230,18 +272,26 @@ def rollout_demos(env_id: str, rule, n_pairs: int, seed: int, command: str,
         "command": command,
         **(extra_metadata or {}),
     }
+
     def first(values: list) -> np.ndarray:
         return np.asarray(values[:n_pairs], dtype=np.float32)
 
-    return Demonstrations(first(observations), first(actions), metadata,
-                          rewards=first(rewards), next_observations=first(next_observations),
-                          terminated=first(terminals), truncated=first(truncations))
+    return Demonstrations(
+        first(observations),
+        first(actions),
+        metadata,
+        rewards=first(rewards),
+        next_observations=first(next_observations),
+        terminated=first(terminals),
+        truncated=first(truncations),
+    )
 
 
 RULE_EXPERTS = {
     "MountainCarContinuous-v0": (
         mountaincar_rule,
-        "hand-made rule from the paper: action -0.5 when velocity < 0, else +0.5"),
+        "hand-made rule from the paper: action -0.5 when velocity < 0, else +0.5",
+    ),
 }
 
 
@@ -259,17 +309,33 @@ def make_demos(env_id: str, n_pairs: int = 1000, seed: int = 0) -> Demonstration
         rule, description = RULE_EXPERTS[env_id]
         return rollout_demos(env_id, rule, n_pairs, seed, command, description)
     if not expert_path(env_id).is_file():
-        raise DemoError(f"no expert is available yet to make demonstrations for {env_id}",
-                        "train one with `python -m replicate expert --env ENV` (see "
-                        "`nox -s experts`) or pass --demos with your own file")
+        raise DemoError(
+            f"no expert is available yet to make demonstrations for {env_id}",
+            "train one with `python -m replicate expert --env ENV` (see "
+            "`nox -s experts`) or pass --demos with your own file",
+        )
     expert = ExpertPolicy(env_id)
     meta = expert.metadata
-    description = (f"deterministic policy of the harness's {meta['algo'].upper()} expert for "
-                   f"{meta['env_id']} (best evaluation {meta['best_eval_return']:.1f} at step "
-                   f"{meta['best_step']:,}; {meta['steps_trained']:,} env steps trained of a "
-                   f"{meta['budget_steps']:,}-step budget; published SAC experts train 1M)")
-    extra = {"expert_algo": meta["algo"], "expert_env_id": meta["env_id"],
-             "expert_steps_trained": meta["steps_trained"], "expert_budget": meta["budget_steps"],
-             "expert_file_command": meta["command"]}
-    return rollout_demos(env_id, expert, n_pairs, seed, command, description,
-                         min_episodes=EXPERT_RETURN_EPISODES, extra_metadata=extra)
+    description = (
+        f"deterministic policy of the harness's {meta['algo'].upper()} expert for "
+        f"{meta['env_id']} (best evaluation {meta['best_eval_return']:.1f} at step "
+        f"{meta['best_step']:,}; {meta['steps_trained']:,} env steps trained of a "
+        f"{meta['budget_steps']:,}-step budget; published SAC experts train 1M)"
+    )
+    extra = {
+        "expert_algo": meta["algo"],
+        "expert_env_id": meta["env_id"],
+        "expert_steps_trained": meta["steps_trained"],
+        "expert_budget": meta["budget_steps"],
+        "expert_file_command": meta["command"],
+    }
+    return rollout_demos(
+        env_id,
+        expert,
+        n_pairs,
+        seed,
+        command,
+        description,
+        min_episodes=EXPERT_RETURN_EPISODES,
+        extra_metadata=extra,
+    )

@@ -11,5 +11,6 @@ def check_device(requested: str) -> None:
     try:
         resolve_device(requested, has_gpu_path=True)
     except (ValueError, DeviceUnavailableError) as exc:
-        raise HarnessError(str(exc), "pass --device auto (GPU when present) or --device cpu"
-                           ) from None
+        raise HarnessError(
+            str(exc), "pass --device auto (GPU when present) or --device cpu"
+        ) from None

@@ -25,14 +25,29 @@ from baselines.common.device import worker_devices
 from replicate import carry
 from replicate.claims import PAPER_FIG4_SEEDS
 from replicate.errors import HarnessError, TimeLimitStop
+from replicate.profiles import (  # noqa: F401
+    PAPER_BUDGETS,
+    PAPER_SEEDS_FIG3,
+    PROFILES,
+    GridOutcome,
+    Profile,
+    get_profile,
+    report_dir,
+)
 from replicate.provenance import portable_path
-from replicate.runner import (DEFAULT_CHECKPOINT_INTERVAL, PreparedRun, Run, check_device,
-                              batch_key, execute, execute_batch, is_complete, load_run,
-                              prepare)
-from replicate.profiles import (PAPER_BUDGETS, PAPER_SEEDS_FIG3, PROFILES, GridOutcome,  # noqa: F401
-                                Profile, get_profile, report_dir)
+from replicate.runner import (
+    DEFAULT_CHECKPOINT_INTERVAL,
+    PreparedRun,
+    Run,
+    batch_key,
+    check_device,
+    execute,
+    execute_batch,
+    is_complete,
+    load_run,
+    prepare,
+)
 from replicate.spec import RunSpec
-
 
 # Per-env values of what the paper leaves open (T2 in raw state units, sigma in action units).
 # An env not listed takes T2 from its demonstrations (drl_eg_env_defaults).
@@ -58,8 +73,9 @@ RULED_PROFILES = ("reduced", "paper")  # the budgets at which the ablation's rul
 T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
 
 
-def drl_eg_env_defaults(env_id: str, profile: str | None = None, algo: str = "drl-eg"
-                        ) -> dict[str, float]:
+def drl_eg_env_defaults(
+    env_id: str, profile: str | None = None, algo: str = "drl-eg"
+) -> dict[str, float]:
     """DRL-EG's T2 and sigma for ``env_id``: the table's, else T2 = the median spacing of the
     env's committed demonstration states (``baselines.drl_eg.demo_state_spacing``), written
     into the spec as a number so the run records the value it used. At the reduced and paper
@@ -76,11 +92,14 @@ def drl_eg_env_defaults(env_id: str, profile: str | None = None, algo: str = "dr
     threshold = spacing
     if MUJOCO_T2_RULE is not None and takes_t2_rule(profile, env_id, algo):
         if MUJOCO_T2_RULE not in T2_RULE_SETTINGS:
-            raise HarnessError(f"MUJOCO_T2_RULE = {MUJOCO_T2_RULE!r} is not a setting of the "
-                               "ablation", f"set one of {', '.join(T2_RULE_SETTINGS)}")
+            raise HarnessError(
+                f"MUJOCO_T2_RULE = {MUJOCO_T2_RULE!r} is not a setting of the ablation",
+                f"set one of {', '.join(T2_RULE_SETTINGS)}",
+            )
         # the ablation's own arithmetic (an int times the spacing): a ruled run is its run
-        threshold = (ALWAYS_GUIDE if MUJOCO_T2_RULE == "always"
-                     else int(MUJOCO_T2_RULE[:-1]) * spacing)
+        threshold = (
+            ALWAYS_GUIDE if MUJOCO_T2_RULE == "always" else int(MUJOCO_T2_RULE[:-1]) * spacing
+        )
     return {"guide_threshold": threshold, "guide_noise_std": DEFAULT_GUIDE_NOISE_STD}
 
 
@@ -101,55 +120,75 @@ def t2_source(profile: str, env_id: str, algo: str) -> str:
     if algo not in T2_ALGORITHMS:
         return "unused: the GMM variant gates on a density quantile of the demonstrations"
     if env_id in DRL_EG_ENV_DEFAULTS:
-        return ("the harness's value for this env (the paper gives none; the MountainCar "
-                "threshold ablation, reports/ablate-threshold, sweeps it)")
+        return (
+            "the harness's value for this env (the paper gives none; the MountainCar "
+            "threshold ablation, reports/ablate-threshold, sweeps it)"
+        )
     spacing = "the median spacing of the demonstration states"
     if not takes_t2_rule(profile, env_id, algo):
         return f"{spacing} (the spacing rule, 1x)"
     if MUJOCO_T2_RULE is None:
         return "none yet: " + T2_WAIT_REASON
-    rule = ("always-guide" if MUJOCO_T2_RULE == "always"
-            else f"{MUJOCO_T2_RULE[:-1]} times {spacing}")
-    return (f"the MuJoCo rule {MUJOCO_T2_RULE} ({rule}), chosen by the threshold ablation on "
-            "Ant-v5 and Walker2d-v5 before any Fig. 3 or Fig. 4 MuJoCo run of DRL-EG "
-            "(reports/reduced/ablate-threshold-ant, -walker2d)")
+    rule = (
+        "always-guide" if MUJOCO_T2_RULE == "always" else f"{MUJOCO_T2_RULE[:-1]} times {spacing}"
+    )
+    return (
+        f"the MuJoCo rule {MUJOCO_T2_RULE} ({rule}), chosen by the threshold ablation on "
+        "Ant-v5 and Walker2d-v5 before any Fig. 3 or Fig. 4 MuJoCo run of DRL-EG "
+        "(reports/reduced/ablate-threshold-ant, -walker2d)"
+    )
 
 
-def guidance_settings(profile: str, runs: list[Run], specs: Sequence[RunSpec] = ()
-                      ) -> list[dict[str, Any]]:
+def guidance_settings(
+    profile: str, runs: list[Run], specs: Sequence[RunSpec] = ()
+) -> list[dict[str, Any]]:
     """Per env and DRL-EG variant among ``runs`` (and the grid's ``specs``, for cells not
     trained yet): the T2 and sigma values its runs recorded in their specs, and where T2
     comes from (``t2_source``), the share of training steps the guider took in each run,
     and whether that share is 0 in every run. What a report prints beside the claims it
     judges."""
-    cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"])
-                                                   for r in runs]
+    cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"]) for r in runs]
     used: dict[tuple[str, str], list[Run]] = {
-        cell: [] for cell in cells if cell[1].startswith("drl-eg")}
+        cell: [] for cell in cells if cell[1].startswith("drl-eg")
+    }
     for run in sorted(runs, key=lambda r: r.spec["seed"]):
         key = (run.spec["env_id"], run.spec["algo"])
         if key in used:
             used[key].append(run)
     rows = []
     for (env_id, algo), cell_runs in used.items():
-        values = [(r.spec["hyperparameters"].get("guide_threshold"),
-                   r.spec["hyperparameters"].get("guide_noise_std")) for r in cell_runs]
+        values = [
+            (
+                r.spec["hyperparameters"].get("guide_threshold"),
+                r.spec["hyperparameters"].get("guide_noise_std"),
+            )
+            for r in cell_runs
+        ]
         uses_t2 = algo in T2_ALGORITHMS
         t2 = sorted({t for t, _ in values if t is not None}) if uses_t2 else []
         shares = [r.guided_share for r in cell_runs]
-        rows.append({"env_id": env_id, "algo": algo, "uses_t2": uses_t2, "runs": len(values),
-                     "guided_share": shares,
-                     # then the guider never chose an action: the runs trained as SAC does
-                     "never_guided": bool(shares) and all(share == 0 for share in shares),
-                     "t2": t2, "t2_labels": ["always" if t >= ALWAYS_GUIDE else f"{t:g}"
-                                             for t in t2],
-                     "sigma": sorted({n for _, n in values if n is not None}),
-                     "source": t2_source(profile, env_id, algo)})
+        rows.append(
+            {
+                "env_id": env_id,
+                "algo": algo,
+                "uses_t2": uses_t2,
+                "runs": len(values),
+                "guided_share": shares,
+                # then the guider never chose an action: the runs trained as SAC does
+                "never_guided": bool(shares) and all(share == 0 for share in shares),
+                "t2": t2,
+                "t2_labels": ["always" if t >= ALWAYS_GUIDE else f"{t:g}" for t in t2],
+                "sigma": sorted({n for _, n in values if n is not None}),
+                "source": t2_source(profile, env_id, algo),
+            }
+        )
     return rows
 
 
-T2_WAIT_REASON = ("waits for the MuJoCo T2 rule, fixed from `nox -s ablate-threshold -- "
-                  "--profile reduced --env Ant-v5` (and Walker2d-v5) before these runs train")
+T2_WAIT_REASON = (
+    "waits for the MuJoCo T2 rule, fixed from `nox -s ablate-threshold -- "
+    "--profile reduced --env Ant-v5` (and Walker2d-v5) before these runs train"
+)
 
 FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
 
@@ -162,8 +201,9 @@ def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in overrides.items() if k in known}
 
 
-def figure3_grid(profile: Profile, seeds: int | None = None
-                 ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+def figure3_grid(
+    profile: Profile, seeds: int | None = None
+) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
     """The Fig. 3 grid: every algorithm x env x seed of the profile, and the (env, algo,
     reason) cells left out because their demonstrations do not exist yet."""
     from baselines.registry import get_algorithm
@@ -176,18 +216,30 @@ def figure3_grid(profile: Profile, seeds: int | None = None
     for env_id in profile.steps:
         for algo in FIG3_ALGORITHMS:
             if get_algorithm(algo).needs_demos and not default_demo_path(env_id).is_file():
-                skipped.append((env_id, algo, "no committed demonstrations for this env yet "
-                                "(`nox -s experts`, then `nox -s demos`)"))
+                skipped.append(
+                    (
+                        env_id,
+                        algo,
+                        "no committed demonstrations for this env yet "
+                        "(`nox -s experts`, then `nox -s demos`)",
+                    )
+                )
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
             if algo.startswith("drl-eg"):
                 hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
             for seed in range(n_seeds):
-                specs.append(RunSpec(algo=algo, env_id=env_id, seed=seed,
-                                     total_steps=profile.steps[env_id],
-                                     eval_interval=profile.eval_interval[env_id],
-                                     eval_episodes=profile.eval_episodes,
-                                     hyperparameters=hyper))
+                specs.append(
+                    RunSpec(
+                        algo=algo,
+                        env_id=env_id,
+                        seed=seed,
+                        total_steps=profile.steps[env_id],
+                        eval_interval=profile.eval_interval[env_id],
+                        eval_episodes=profile.eval_episodes,
+                        hyperparameters=hyper,
+                    )
+                )
     return specs, skipped
 
 
@@ -222,9 +274,14 @@ def _init_worker(progress: Any, devices: Any) -> None:
     _device = devices.get()
 
 
-def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interval: int,
-            follow_checkpoint: bool, env_workers: int = 0,
-            deadline: float | None = None) -> list[tuple[str, str]]:
+def _worker(
+    task: PreparedRun | list[PreparedRun],
+    store: str,
+    checkpoint_interval: int,
+    follow_checkpoint: bool,
+    env_workers: int = 0,
+    deadline: float | None = None,
+) -> list[tuple[str, str]]:
     """Train one run, or one batch of runs, in a worker process, posting step counts to the
     progress queue; return the (run id, reason) of batch members that failed alone. Past
     ``deadline`` a task does not start, and a running one checkpoints and stops
@@ -249,24 +306,37 @@ def _worker(task: PreparedRun | list[PreparedRun], store: str, checkpoint_interv
     failed: list[tuple[str, str]] = []
     if isinstance(task, list):
         try:
-            failed = execute_batch(task, Path(store), on_steps=on_steps,
-                                   checkpoint_interval=checkpoint_interval, device=_device,
-                                   follow_checkpoint=follow_checkpoint,
-                                   env_workers=env_workers, deadline=deadline).failed
+            failed = execute_batch(
+                task,
+                Path(store),
+                on_steps=on_steps,
+                checkpoint_interval=checkpoint_interval,
+                device=_device,
+                follow_checkpoint=follow_checkpoint,
+                env_workers=env_workers,
+                deadline=deadline,
+            ).failed
         finally:
             progress.put(pending)
     else:
         try:
-            execute(task, Path(store), on_steps=on_steps,
-                    checkpoint_interval=checkpoint_interval, device=_device,
-                    follow_checkpoint=follow_checkpoint, deadline=deadline)
+            execute(
+                task,
+                Path(store),
+                on_steps=on_steps,
+                checkpoint_interval=checkpoint_interval,
+                device=_device,
+                follow_checkpoint=follow_checkpoint,
+                deadline=deadline,
+            )
         finally:
             progress.put(pending)
     return failed
 
 
-def carried_tasks(missing: list[PreparedRun], store: Path | None
-                  ) -> tuple[list[PreparedRun | list[PreparedRun]], list[PreparedRun]]:
+def carried_tasks(
+    missing: list[PreparedRun], store: Path | None
+) -> tuple[list[PreparedRun | list[PreparedRun]], list[PreparedRun]]:
     """The runs and seed batches carried in the store (``replicate.carry``) whose members
     are all missing, each as it was carried (a batch as the batch it was, a run alone), and
     the missing runs left over."""
@@ -281,8 +351,9 @@ def carried_tasks(missing: list[PreparedRun], store: Path | None
     return tasks, [p for p in missing if p.run_id in by_id]
 
 
-def plan_batches(missing: list[PreparedRun], batch: int | None, store: Path | None = None
-                 ) -> list[PreparedRun | list[PreparedRun]]:
+def plan_batches(
+    missing: list[PreparedRun], batch: int | None, store: Path | None = None
+) -> list[PreparedRun | list[PreparedRun]]:
     """The grid's tasks: runs of an algorithm with a batched trainer grouped, at most
     ``batch`` per group, by everything but their seed; every other run alone. ``batch``
     None or 1: every run alone. What is carried in ``store`` resumes as it was carried,
@@ -300,8 +371,9 @@ def plan_batches(missing: list[PreparedRun], batch: int | None, store: Path | No
         else:
             groups.setdefault(batch_key(p), []).append(p)
     batches = [t for t in carried if isinstance(t, list)]
-    batches += [group[i:i + batch] for group in groups.values()
-                for i in range(0, len(group), batch)]
+    batches += [
+        group[i : i + batch] for group in groups.values() for i in range(0, len(group), batch)
+    ]
     # the longest work first, so that the one-run tasks fill the gaps
     return sorted(batches, key=lambda b: -sum(p.spec.total_steps for p in b)) + tasks
 
@@ -340,14 +412,18 @@ def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], f
     means = {key: sum(values) / len(values) for key, values in rates.items()}
     chosen = {(algo, env_id): rate for (gpu, algo, env_id), rate in means.items() if not gpu}
     if on_gpu:
-        chosen.update({(algo, env_id): rate
-                       for (gpu, algo, env_id), rate in means.items() if gpu})
+        chosen.update({(algo, env_id): rate for (gpu, algo, env_id), rate in means.items() if gpu})
     return chosen
 
 
-def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
-                     workers: int, rates: dict[tuple[str, str], float] | None = None,
-                     on_gpu: bool = False, carried_batches: bool = True) -> float:
+def estimate_minutes(
+    tasks: list[PreparedRun | list[PreparedRun]],
+    store: Path,
+    workers: int,
+    rates: dict[tuple[str, str], float] | None = None,
+    on_gpu: bool = False,
+    carried_batches: bool = True,
+) -> float:
     """Wall minutes to train ``tasks`` (runs, or seed batches that train their members at
     once) on ``workers`` processes, from the speed each algorithm had on each env in the
     store (else the same algorithm's slowest env, else the env's slowest algorithm, else a
@@ -359,8 +435,9 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
     make smaller batches and single runs look faster than they are."""
     rates = measured_rates(store, on_gpu) if rates is None else rates
     # a carried run resumes at its carried step: only the rest is trained here
-    done = carry.resumable_steps(store, {r for task in tasks for r in _task_ids(task)},
-                                 batches=carried_batches)
+    done = carry.resumable_steps(
+        store, {r for task in tasks for r in _task_ids(task)}, batches=carried_batches
+    )
     by_algo: dict[str, list[float]] = {}
     by_env: dict[str, list[float]] = {}
     for (algo, env_id), rate in rates.items():
@@ -373,9 +450,9 @@ def estimate_minutes(tasks: list[PreparedRun | list[PreparedRun]], store: Path,
         # untimed here: the algorithm's slowest other env; a new algorithm costs most like
         # the env's slowest timed one (the env's step and network sizes dominate; slow errs
         # on the safe side)
-        rate = (rates.get((p.spec.algo, p.spec.env_id))
-                or min(by_algo.get(p.spec.algo) or by_env.get(p.spec.env_id)
-                       or [DEFAULT_STEPS_PER_S]))
+        rate = rates.get((p.spec.algo, p.spec.env_id)) or min(
+            by_algo.get(p.spec.algo) or by_env.get(p.spec.env_id) or [DEFAULT_STEPS_PER_S]
+        )
         seconds += sum(m.spec.total_steps - done.get(m.run_id, 0) for m in members) / rate
     return seconds / workers / 60
 
@@ -393,11 +470,13 @@ def _gpu_requested(device: str, missing: list[PreparedRun], gpu_workers: int | N
     from baselines.registry import get_algorithm
 
     return gpu_workers != 0 and any(
-        resolve_device(device, get_algorithm(p.spec.algo).gpu) == "cuda" for p in missing)
+        resolve_device(device, get_algorithm(p.spec.algo).gpu) == "cuda" for p in missing
+    )
 
 
-def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
-                  concurrent: int = 1) -> int | None:
+def resolve_batch(
+    batch: int | None, missing: list[PreparedRun], device: str, concurrent: int = 1
+) -> int | None:
     """The batch size a grid trains with: ``batch`` if given (checked), else on a GPU the
     largest up to ``DEFAULT_GPU_BATCH`` such that ``concurrent`` batches at once fit its
     memory, else None (one run per process). Bad sizes raise a one-line
@@ -410,8 +489,10 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
     batchable = [p for p in missing if batched_trainer(p.spec.algo) is not None]
     if batch is not None and batch > 1 and missing and not batchable:
         names = sorted({p.spec.algo for p in missing})
-        raise HarnessError(f"--batch {batch}: no batched trainer for {', '.join(names)}",
-                           "drop --batch (or batch sac, sac-twin-q, drl-eg, rlpd and ibrl runs)")
+        raise HarnessError(
+            f"--batch {batch}: no batched trainer for {', '.join(names)}",
+            "drop --batch (or batch sac, sac-twin-q, drl-eg, rlpd and ibrl runs)",
+        )
     on_gpu = resolve_device(device, has_gpu_path=True) == "cuda"
     if not on_gpu or not batchable:
         return batch
@@ -423,10 +504,12 @@ def resolve_batch(batch: int | None, missing: list[PreparedRun], device: str,
     if batch is None:
         return max(1, min(DEFAULT_GPU_BATCH, fits))
     if batch > fits:
-        raise HarnessError(f"{max(1, concurrent)} batch(es) of {batch} at once need about "
-                           f"{batch * need / 2**30:.1f} GiB of GPU memory; "
-                           f"{free / 2**30:.1f} GiB are free",
-                           f"pass --batch {max(1, fits)} or less, or fewer --workers")
+        raise HarnessError(
+            f"{max(1, concurrent)} batch(es) of {batch} at once need about "
+            f"{batch * need / 2**30:.1f} GiB of GPU memory; "
+            f"{free / 2**30:.1f} GiB are free",
+            f"pass --batch {max(1, fits)} or less, or fewer --workers",
+        )
     return batch
 
 
@@ -444,9 +527,15 @@ def batch_bytes(prepared: PreparedRun, members: int) -> int:
     return members * (replay + critic_pairs * 2**26)
 
 
-def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-               workers: int, where: str = "local", batch: int | None = None,
-               on_gpu: bool = False) -> None:
+def print_plan(
+    prepared: list[PreparedRun],
+    missing: list[PreparedRun],
+    store: Path,
+    workers: int,
+    where: str = "local",
+    batch: int | None = None,
+    on_gpu: bool = False,
+) -> None:
     """What a grid would train: its missing runs per env and algorithm, their env steps,
     and the minutes they would take (from the speeds the store's runs recorded), per cell in
     one process and in all on up to ``workers`` ``where`` workers, one run per process or,
@@ -460,14 +549,16 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     cells: dict[tuple[str, str, str], list[PreparedRun]] = {}
     for (env_id, algo), runs in groups.items():
         keys = set().union(*(p.spec.hyperparameters for p in runs))
-        varying = sorted(k for k in keys
-                         if len({repr(p.spec.hyperparameters.get(k)) for p in runs}) > 1)
+        varying = sorted(
+            k for k in keys if len({repr(p.spec.hyperparameters.get(k)) for p in runs}) > 1
+        )
         for p in runs:
-            settings = " ".join(f"{k}={p.spec.hyperparameters.get(k, 'default')}"
-                                for k in varying)
+            settings = " ".join(f"{k}={p.spec.hyperparameters.get(k, 'default')}" for k in varying)
             cells.setdefault((env_id, algo, settings), []).append(p)
-    print(f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
-          f"{len(missing)} to train; nothing is trained or written")
+    print(
+        f"dry run: {len(prepared)} runs, {len(prepared) - len(missing)} already in {store}, "
+        f"{len(missing)} to train; nothing is trained or written"
+    )
     rates = measured_rates(store, on_gpu)
     for (env_id, algo, settings), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
@@ -475,30 +566,39 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
         carried = sum(carry.resumable_steps(store, {p.run_id for p in runs}).values())
         point = f"  ({settings})" if settings else ""
         point += f"  ({carried:,} of them carried)" if carried else ""
-        print(f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
-              f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process{point}")
+        print(
+            f"  {env_id:<40} {algo:<14} seeds {seeds:<14} {steps:>12,} env steps  "
+            f"~{estimate_minutes(runs, store, 1, rates):,.0f} min in one process{point}"
+        )
     total = sum(p.spec.total_steps for p in missing)
     if where != "local":  # the cluster's size is not known without connecting to it
-        print(f"  total {total:,} env steps: about "
-              f"{estimate_minutes(missing, store, 1, rates, carried_batches=False):,.0f} "
-              "process-minutes on "
-              f"{where} CPUs")
+        print(
+            f"  total {total:,} env steps: about "
+            f"{estimate_minutes(missing, store, 1, rates, carried_batches=False):,.0f} "
+            "process-minutes on "
+            f"{where} CPUs"
+        )
         return
-    tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch,
-                         store)
+    tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch, store)
     asked = {p.run_id for p in missing}
     for manifest in carry.listing(store):
         members = set(manifest["members"])
         if not asked & members:
             continue
-        where = (f"carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
-                 f"(packed {manifest['packed_utc']} on {manifest['cpu_model']})")
+        where = (
+            f"carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
+            f"(packed {manifest['packed_utc']} on {manifest['cpu_model']})"
+        )
         if members <= asked:
-            print(f"  {where}; it resumes from there"
-                  + (" as the batch it was" if manifest["kind"] == "batch" else ""))
+            print(
+                f"  {where}; it resumes from there"
+                + (" as the batch it was" if manifest["kind"] == "batch" else "")
+            )
         else:
-            print(f"  {where}: {len(members - asked)} of its runs are not in this plan, so "
-                  "it does not resume here; its runs in the plan start over")
+            print(
+                f"  {where}: {len(members - asked)} of its runs are not in this plan, so "
+                "it does not resume here; its runs in the plan start over"
+            )
     carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
@@ -507,20 +607,32 @@ def print_plan(prepared: list[PreparedRun], missing: list[PreparedRun], store: P
     how = "one run per process"
     if batches:
         alone, batched = len(tasks) - len(batches), sum(len(b) for b in batches)
-        how = (f"{batched} run{'s' if batched > 1 else ''} in {len(batches)} seed "
-               f"batch{'es' if len(batches) > 1 else ''}"
-               + (f", {alone} run{'s' if alone > 1 else ''} one per process" if alone else ""))
-    print(f"  total {total:,} env steps"
-          + (f" ({total - carried:,} to train, the rest carried)" if carried else "")
-          + f": about {minutes:,.0f} min on {used} local worker(s), {how}")
+        how = (
+            f"{batched} run{'s' if batched > 1 else ''} in {len(batches)} seed "
+            f"batch{'es' if len(batches) > 1 else ''}"
+            + (f", {alone} run{'s' if alone > 1 else ''} one per process" if alone else "")
+        )
+    print(
+        f"  total {total:,} env steps"
+        + (f" ({total - carried:,} to train, the rest carried)" if carried else "")
+        + f": about {minutes:,.0f} min on {used} local worker(s), {how}"
+    )
 
 
-def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
-             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-             address: str | None = None, device: str = "auto",
-             gpu_workers: int | None = None, batch: int | None = None,
-             env_workers: int | None = None, dry_run: bool = False,
-             deadline: float | None = None) -> GridOutcome:
+def run_grid(
+    specs: list[RunSpec],
+    store: Path,
+    workers: int | None = None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    executor: str = "local",
+    address: str | None = None,
+    device: str = "auto",
+    gpu_workers: int | None = None,
+    batch: int | None = None,
+    env_workers: int | None = None,
+    dry_run: bool = False,
+    deadline: float | None = None,
+) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
     ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
@@ -547,24 +659,32 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         # Ray places one run per CPU and hands its tasks no GPU unless asked; all of a
         # node's runs on its GPU would also queue there (bench_gpu.json): CPUs it is
         if device == "cuda":
-            raise HarnessError("--device cuda is not supported with --executor ray",
-                               "pass --device auto (the cluster's CPUs), or train locally")
+            raise HarnessError(
+                "--device cuda is not supported with --executor ray",
+                "pass --device auto (the cluster's CPUs), or train locally",
+            )
         if batch is not None:
-            raise HarnessError("--batch is not supported with --executor ray",
-                               "drop --batch, or train locally")
+            raise HarnessError(
+                "--batch is not supported with --executor ray", "drop --batch, or train locally"
+            )
     if dry_run:
         resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
-        print_plan(prepared, missing, store, workers or os.cpu_count() or 1,
-                   "local" if executor == "local" else "the Ray cluster's", batch,
-                   on_gpu=executor == "local" and _gpu_requested(device, missing,
-                                                                 gpu_workers))
+        print_plan(
+            prepared,
+            missing,
+            store,
+            workers or os.cpu_count() or 1,
+            "local" if executor == "local" else "the Ray cluster's",
+            batch,
+            on_gpu=executor == "local" and _gpu_requested(device, missing, gpu_workers),
+        )
         return GridOutcome([], [], None)
     if executor == "ray":
-        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu",
-                           deadline)
+        return _run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu", deadline)
     try:  # at most this many batches share the GPU at once
-        gpu_slots = worker_devices(device, workers or os.cpu_count() or 1,
-                                   gpu_workers).count("cuda")
+        gpu_slots = worker_devices(device, workers or os.cpu_count() or 1, gpu_workers).count(
+            "cuda"
+        )
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
     carry.prune(store)  # what landed elsewhere is carried no more
@@ -579,16 +699,20 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     on_gpu = devices.count("cuda")
     total_steps = sum(p.spec.total_steps for p in missing)
     batches = [t for t in tasks if isinstance(t, list)]
-    batched_note = (f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)"
-                    if batches else "")
+    batched_note = (
+        f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)" if batches else ""
+    )
     carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
     carried_note = f" ({carried:,} of them carried)" if carried else ""
-    print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-          f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps{carried_note} on "
-          f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
-          f"estimated {estimate_minutes(tasks, store, workers, on_gpu=on_gpu > 0):.0f} min "
-          "on this machine "
-          "(from the speeds of the store's runs)", flush=True)
+    print(
+        f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
+        f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps{carried_note} on "
+        f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
+        f"estimated {estimate_minutes(tasks, store, workers, on_gpu=on_gpu > 0):.0f} min "
+        "on this machine "
+        "(from the speeds of the store's runs)",
+        flush=True,
+    )
 
     started = time.time()
     failed: list[tuple[str, str]] = []
@@ -603,15 +727,27 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
         device_slots = ctx.Queue()
         for worker_device in devices:
             device_slots.put(worker_device)
-        with tqdm(total=total_steps, unit="step", dynamic_ncols=True, mininterval=1.0,
-                  desc="training") as bar:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                     initializer=_init_worker,
-                                     initargs=(progress, device_slots)) as pool:
+        with tqdm(
+            total=total_steps, unit="step", dynamic_ncols=True, mininterval=1.0, desc="training"
+        ) as bar:
+            with ProcessPoolExecutor(
+                max_workers=workers,
+                mp_context=ctx,
+                initializer=_init_worker,
+                initargs=(progress, device_slots),
+            ) as pool:
                 futures: dict[Future, PreparedRun | list[PreparedRun]] = {
-                    pool.submit(_worker, task, str(store), checkpoint_interval,
-                                device == "auto", env_workers, deadline): task
-                    for task in tasks}
+                    pool.submit(
+                        _worker,
+                        task,
+                        str(store),
+                        checkpoint_interval,
+                        device == "auto",
+                        env_workers,
+                        deadline,
+                    ): task
+                    for task in tasks
+                }
                 pending = set(futures)
                 done_count = 0
                 while pending:
@@ -623,8 +759,9 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                         task = futures[future]
                         error = None if future.cancelled() else future.exception()
                         lost: list[tuple[str, str]] = []
-                        if future.cancelled() or (isinstance(error, TimeLimitReached)
-                                                  and error.step is None):
+                        if future.cancelled() or (
+                            isinstance(error, TimeLimitReached) and error.step is None
+                        ):
                             not_started.extend(_task_ids(task))
                             continue
                         if isinstance(error, TimeLimitReached):
@@ -644,9 +781,12 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
                             bar.update(progress.get_nowait())
                     except queue.Empty:
                         pass
-                    bar.set_postfix_str(f"runs done {done_count}/{len(missing)}, "
-                                        f"running {min(workers, len(pending))} task(s), "
-                                        f"failed {len(failed)}", refresh=False)
+                    bar.set_postfix_str(
+                        f"runs done {done_count}/{len(missing)}, "
+                        f"running {min(workers, len(pending))} task(s), "
+                        f"failed {len(failed)}",
+                        refresh=False,
+                    )
             try:  # what the last workers posted as they finished
                 while True:
                     bar.update(progress.get(timeout=0.1))
@@ -658,24 +798,41 @@ def run_grid(specs: list[RunSpec], store: Path, workers: int | None = None,
     return GridOutcome(runs, failed, time.time() - started)
 
 
-def _stop_summary(missing: list[PreparedRun], store: Path, stopped: list[str],
-                  not_started: list[str], failed: list[tuple[str, str]]) -> str:
+def _stop_summary(
+    missing: list[PreparedRun],
+    store: Path,
+    stopped: list[str],
+    not_started: list[str],
+    failed: list[tuple[str, str]],
+) -> str:
     """What a grid stopped at its time limit leaves: runs kept, checkpointed, not started."""
     landed = sum(is_complete(p.directory(store)) for p in missing)
-    parts = [f"{landed} of {len(missing)} runs finished and kept",
-             f"{len(stopped)} checkpointed at the limit", f"{len(not_started)} not started"]
+    parts = [
+        f"{landed} of {len(missing)} runs finished and kept",
+        f"{len(stopped)} checkpointed at the limit",
+        f"{len(not_started)} not started",
+    ]
     if failed:
         parts.append(f"{len(failed)} failed")
     return ", ".join(parts)
 
 
-def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
-                out_dir: Path = Path("reports/fig3"), workers: int | None = None,
-                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None, batch: int | None = None,
-                algos: list[str] | None = None, envs: list[str] | None = None,
-                dry_run: bool = False) -> Path | None:
+def run_figure3(
+    profile: str = "quick",
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path = Path("reports/fig3"),
+    workers: int | None = None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    executor: str = "local",
+    address: str | None = None,
+    device: str = "auto",
+    gpu_workers: int | None = None,
+    batch: int | None = None,
+    algos: list[str] | None = None,
+    envs: list[str] | None = None,
+    dry_run: bool = False,
+) -> Path | None:
     """Train the Fig. 3 grid (what is missing; only the cells of ``algos`` x ``envs`` when
     given) and write its HTML report from every run of the grid in the store; return its
     path. ``dry_run``: print what would train, train and write nothing, return None."""
@@ -684,30 +841,58 @@ def run_figure3(profile: str = "quick", seeds: int | None = None, store: Path = 
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
     return train_and_report(
-        specs, skipped, profile, figure3_command(profile), store, out_dir,
+        specs,
+        skipped,
+        profile,
+        figure3_command(profile),
+        store,
+        out_dir,
         lambda outcome, out: write_figure3_report(
-            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs),
-            figure4_runs(profile, Path(store))),
-        algos, envs, dry_run, workers=workers, checkpoint_interval=checkpoint_interval,
-        executor=executor, address=address, device=device, gpu_workers=gpu_workers,
-        batch=batch)
+            outcome,
+            chosen,
+            out,
+            guidance_settings(profile, outcome.runs, specs),
+            figure4_runs(profile, Path(store)),
+        ),
+        algos,
+        envs,
+        dry_run,
+        workers=workers,
+        checkpoint_interval=checkpoint_interval,
+        executor=executor,
+        address=address,
+        device=device,
+        gpu_workers=gpu_workers,
+        batch=batch,
+    )
 
 
-def without_waiting(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str
-                    ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+def without_waiting(
+    specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str
+) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
     """A grid less its cells that wait for the MuJoCo T2 rule, those listed as skipped: a
     report never shows them, even where the store holds runs of the same spec (the
     ablation's 1x point is one)."""
     waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
-    return ([s for s in specs if s not in waiting],
-            skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting}))
+    return (
+        [s for s in specs if s not in waiting],
+        skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting}),
+    )
 
 
-def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
-                     command: str, store: Path, out_dir: Path,
-                     write: Callable[[GridOutcome, Path], Path],
-                     algos: list[str] | None = None, envs: list[str] | None = None,
-                     dry_run: bool = False, **grid_options: Any) -> Path | None:
+def train_and_report(
+    specs: list[RunSpec],
+    skipped: list[tuple[str, str, str]],
+    profile: str,
+    command: str,
+    store: Path,
+    out_dir: Path,
+    write: Callable[[GridOutcome, Path], Path],
+    algos: list[str] | None = None,
+    envs: list[str] | None = None,
+    dry_run: bool = False,
+    **grid_options: Any,
+) -> Path | None:
     """A figure command: train what its grid lacks (of the ``algos`` x ``envs`` cells when
     given; cells that wait for the MuJoCo T2 rule never), then ``write(outcome, out_dir)``
     its report from every run of the grid in the store, never over a report that names more
@@ -717,8 +902,10 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
     chosen = [s for s in selected if s in specs]
     if (algos or envs) and not chosen:
         why = "; they wait for the MuJoCo T2 rule" if selected else ""
-        raise HarnessError(f"--algos/--envs: no cell of this grid to train there{why}",
-                           "choose other cells (`--dry-run` lists what is missing)")
+        raise HarnessError(
+            f"--algos/--envs: no cell of this grid to train there{why}",
+            "choose other cells (`--dry-run` lists what is missing)",
+        )
     for env_id, algo, reason in skipped:  # the report lists them all; here the chosen ones
         if (algos is None or algo in algos) and (envs is None or env_id in envs):
             print(f"skipped {algo} on {env_id}: {reason}")
@@ -728,15 +915,21 @@ def train_and_report(specs: list[RunSpec], skipped: list[tuple[str, str, str]], 
     outcome.skipped = skipped + outcome.skipped
     report = write_saying_why(Path(out_dir), Path(store), lambda out: write(outcome, out))
     if outcome.failed:
-        where = (f"the report at {report} lists them" if report is not None else
-                 f"e.g. {outcome.failed[0][0]}: {outcome.failed[0][1]}")
-        raise HarnessError(f"{len(outcome.failed)} run(s) failed; {where}",
-                           "read the reasons, fix, and run the same command")
+        where = (
+            f"the report at {report} lists them"
+            if report is not None
+            else f"e.g. {outcome.failed[0][0]}: {outcome.failed[0][1]}"
+        )
+        raise HarnessError(
+            f"{len(outcome.failed)} run(s) failed; {where}",
+            "read the reasons, fix, and run the same command",
+        )
     return report
 
 
-def write_saying_why(out_dir: Path, store: Path, build: Callable[[Path], Path | None]
-                     ) -> Path | None:
+def write_saying_why(
+    out_dir: Path, store: Path, build: Callable[[Path], Path | None]
+) -> Path | None:
     """``report.write_unless_fewer``, printing its line when some of the old report's runs
     were missing; returns the index written (None: nothing written)."""
     from replicate.report import write_unless_fewer
@@ -752,8 +945,7 @@ def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
     return stored_and_absent(specs, store)[0]
 
 
-def stored_and_absent(specs: list[RunSpec], store: Path
-                      ) -> tuple[list[Run], list[RunSpec]]:
+def stored_and_absent(specs: list[RunSpec], store: Path) -> tuple[list[Run], list[RunSpec]]:
     """The complete runs of ``specs`` in the store (in the order of ``specs``), and the specs
     whose run is not there yet."""
     runs, absent = [], []
@@ -766,14 +958,17 @@ def stored_and_absent(specs: list[RunSpec], store: Path
     return runs, absent
 
 
-def absent_cells(specs: list[RunSpec], command: str, store: Path | None = None
-                 ) -> list[tuple[str, str, str]]:
+def absent_cells(
+    specs: list[RunSpec], command: str, store: Path | None = None
+) -> list[tuple[str, str, str]]:
     """A report's (env, algo, reason) line per cell for the runs not in the store yet, with
     the seeds each cell lacks and, for those carried unfinished in ``store``
     (``replicate.carry``), the step they are carried at."""
-    carried_at = {run_id: manifest["step"] for manifest in
-                  (carry.listing(store) if store is not None else [])
-                  for run_id in manifest["members"]}
+    carried_at = {
+        run_id: manifest["step"]
+        for manifest in (carry.listing(store) if store is not None else [])
+        for run_id in manifest["members"]
+    }
     seeds: dict[tuple[str, str], list[int]] = {}
     steps: dict[tuple[str, str], list[tuple[int, int]]] = {}
     for spec in specs:
@@ -790,15 +985,25 @@ def absent_cells(specs: list[RunSpec], command: str, store: Path | None = None
             at = ", ".join(f"seed {seed} at step {step:,}" for seed, step in sorted(steps[cell]))
             where = portable_path(carry.carry_root(store))
             carried_note = f"; carried unfinished in {where}: {at}"
-        lines.append((*cell, f"{'seed' if one else 'seeds'} {', '.join(map(str, sorted(lacking)))} "
-                             f"not in the store yet{carried_note} (run `{command}` to "
-                             f"{'train' if not carried_note else 'train or resume'} "
-                             f"{'it' if one else 'them'})"))
+        lines.append(
+            (
+                *cell,
+                f"{'seed' if one else 'seeds'} {', '.join(map(str, sorted(lacking)))} "
+                f"not in the store yet{carried_note} (run `{command}` to "
+                f"{'train' if not carried_note else 'train or resume'} "
+                f"{'it' if one else 'them'})",
+            )
+        )
     return lines
 
 
-def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str,
-                   store: Path, command: str) -> GridOutcome | None:
+def stored_outcome(
+    specs: list[RunSpec],
+    skipped: list[tuple[str, str, str]],
+    profile: str,
+    store: Path,
+    command: str,
+) -> GridOutcome | None:
     """A grid's outcome from the store alone, for a rebuilt report: its complete runs, the
     cells that wait for the T2 rule and the runs not there yet listed as skipped; None when
     the store holds none of its runs."""
@@ -809,8 +1014,9 @@ def stored_outcome(specs: list[RunSpec], skipped: list[tuple[str, str, str]], pr
     return GridOutcome(runs, [], None, skipped + absent_cells(absent, command, store))
 
 
-def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
-                 ) -> list[RunSpec]:
+def select_cells(
+    specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
+) -> list[RunSpec]:
     """The specs of a grid whose algorithm is in ``algos`` and env in ``envs`` (None: any);
     a name the grid does not have is a one-line error that lists the ones it has."""
     for chosen, field, flag in ((algos, "algo", "--algos"), (envs, "env_id", "--envs")):
@@ -819,14 +1025,24 @@ def select_cells(specs: list[RunSpec], algos: list[str] | None, envs: list[str] 
         have = sorted({getattr(s, field) for s in specs})
         unknown = [name for name in chosen if name not in have]
         if unknown:
-            raise HarnessError(f"{flag}: {', '.join(unknown)} not in this grid",
-                               f"choose from {', '.join(have)}")
-    return [s for s in specs if (algos is None or s.algo in algos)
-            and (envs is None or s.env_id in envs)]
+            raise HarnessError(
+                f"{flag}: {', '.join(unknown)} not in this grid", f"choose from {', '.join(have)}"
+            )
+    return [
+        s
+        for s in specs
+        if (algos is None or s.algo in algos) and (envs is None or s.env_id in envs)
+    ]
 
 
-def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, command: str,
-                dry_run: bool = False, **grid_options: Any) -> GridOutcome:
+def train_cells(
+    specs: list[RunSpec],
+    chosen: list[RunSpec],
+    store: Path,
+    command: str,
+    dry_run: bool = False,
+    **grid_options: Any,
+) -> GridOutcome:
     """Train the ``chosen`` part of a grid (what is missing of it); the outcome holds every
     complete run of the whole grid, and the cells outside ``chosen`` that are still absent
     are listed, so a report written from it covers the whole grid."""
@@ -834,23 +1050,38 @@ def train_cells(specs: list[RunSpec], chosen: list[RunSpec], store: Path, comman
     if len(chosen) == len(specs) or dry_run:
         return outcome
     outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
-    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command,
-                                   store)
+    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command, store)
     return outcome
 
 
-def _ray_execute(prepared: PreparedRun, store: str, checkpoint_interval: int,
-                 device: str, deadline: float | None = None) -> str:
+def _ray_execute(
+    prepared: PreparedRun,
+    store: str,
+    checkpoint_interval: int,
+    device: str,
+    deadline: float | None = None,
+) -> str:
     if past(deadline):
         raise TimeLimitReached(None)
-    execute(prepared, Path(store), checkpoint_interval=checkpoint_interval, device=device,
-            deadline=deadline)
+    execute(
+        prepared,
+        Path(store),
+        checkpoint_interval=checkpoint_interval,
+        device=device,
+        deadline=deadline,
+    )
     return prepared.run_id
 
 
-def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: Path,
-                address: str | None, checkpoint_interval: int, device: str = "auto",
-                deadline: float | None = None) -> GridOutcome:
+def _run_on_ray(
+    prepared: list[PreparedRun],
+    missing: list[PreparedRun],
+    store: Path,
+    address: str | None,
+    checkpoint_interval: int,
+    device: str = "auto",
+    deadline: float | None = None,
+) -> GridOutcome:
     """One Ray task per missing run, one CPU each. The store must be a path every node
     sees (a shared filesystem), and every node needs this project installed."""
     try:
@@ -858,29 +1089,41 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
     except ImportError:
         raise HarnessError("the Ray executor needs ray", "pip install 'ray>=2.9'") from None
     if address is None:
-        raise HarnessError("--executor ray needs the cluster's address",
-                           "pass --address HOST:PORT of a running Ray head")
+        raise HarnessError(
+            "--executor ray needs the cluster's address",
+            "pass --address HOST:PORT of a running Ray head",
+        )
     ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     cluster_cpus = int(ray.cluster_resources().get("CPU", 1))
     total_steps = sum(p.spec.total_steps for p in missing)
-    print(f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-          f"training {len(missing)} runs, {total_steps:,} env steps on the Ray cluster at "
-          f"{address} ({cluster_cpus} CPUs); estimated "
-          f"{estimate_minutes(missing, store, cluster_cpus, carried_batches=False):.0f} min",
-          flush=True)
+    print(
+        f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
+        f"training {len(missing)} runs, {total_steps:,} env steps on the Ray cluster at "
+        f"{address} ({cluster_cpus} CPUs); estimated "
+        f"{estimate_minutes(missing, store, cluster_cpus, carried_batches=False):.0f} min",
+        flush=True,
+    )
     asked = {p.run_id for p in missing}
-    carried_batches = [m["name"] for m in carry.listing(store)
-                       if m["kind"] == "batch" and asked & set(m["members"])]
+    carried_batches = [
+        m["name"]
+        for m in carry.listing(store)
+        if m["kind"] == "batch" and asked & set(m["members"])
+    ]
     if carried_batches:
-        print(f"note: {', '.join(carried_batches)} (carried seed batches) resume with the "
-              "local executor only; on Ray their runs start over", flush=True)
+        print(
+            f"note: {', '.join(carried_batches)} (carried seed batches) resume with the "
+            "local executor only; on Ray their runs start over",
+            flush=True,
+        )
     started = time.time()
     failed: list[tuple[str, str]] = []
     stopped: list[str] = []
     not_started: list[str] = []
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
-    pending = {remote.remote(p, str(store.resolve()), checkpoint_interval, device, deadline): p
-               for p in missing}
+    pending = {
+        remote.remote(p, str(store.resolve()), checkpoint_interval, device, deadline): p
+        for p in missing
+    }
     with tqdm(total=len(missing), unit="run", dynamic_ncols=True, desc="training on Ray") as bar:
         while pending:
             finished, _ = ray.wait(list(pending), num_returns=1)
@@ -897,8 +1140,11 @@ def _run_on_ray(prepared: list[PreparedRun], missing: list[PreparedRun], store: 
                         failed.append((run.run_id, reason))
                         tqdm.write(f"run failed: {run.run_id}: {reason}")
                 bar.update(1)
-                bar.set_postfix_str(f"running {min(len(pending), cluster_cpus)}, "
-                                    f"left {len(pending)}, failed {len(failed)}", refresh=False)
+                bar.set_postfix_str(
+                    f"running {min(len(pending), cluster_cpus)}, "
+                    f"left {len(pending)}, failed {len(failed)}",
+                    refresh=False,
+                )
     runs = [load_run(p.directory(store)) for p in prepared if is_complete(p.directory(store))]
     if stopped or not_started:
         raise TimeLimitStop(_stop_summary(missing, store, stopped, not_started, failed))
@@ -910,9 +1156,12 @@ def figure3_command(profile: str) -> str:
     return f"nox -s replicate-fig3 -- --profile {profile}"
 
 
-def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
-                    store: Path = Path("runs"), out_dir: Path = Path("reports/fig3")
-                    ) -> Path | None:
+def rebuild_figure3(
+    profile: str = "quick",
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path = Path("reports/fig3"),
+) -> Path | None:
     """Write the Fig. 3 report from the runs already in the store; train nothing. Cells of
     the grid whose runs are missing are listed in the report. With none of the grid's runs
     in the store, nothing is written (a committed report is not replaced by an empty one)
@@ -924,20 +1173,28 @@ def rebuild_figure3(profile: str = "quick", seeds: int | None = None,
     outcome = stored_outcome(specs, skipped, profile, store, figure3_command(profile))
     if outcome is None:
         return None
-    return write_figure3_report(outcome, chosen, out_dir,
-                                guidance_settings(profile, outcome.runs, specs),
-                                figure4_runs(profile, Path(store)))
+    return write_figure3_report(
+        outcome,
+        chosen,
+        out_dir,
+        guidance_settings(profile, outcome.runs, specs),
+        figure4_runs(profile, Path(store)),
+    )
 
 
 FIG4_ENV = "Ant-v5"
 FIG4_SEEDS = PAPER_FIG4_SEEDS  # the paper's four fixed seeds; claim 5 counts them too
 FIG4_BUDGETS: dict[str, tuple[int, int]] = {  # (env steps, evaluation interval) per profile
-    "smoke": (1200, 400), "quick": (20_000, 1000), "reduced": (500_000, 10_000),
-    "paper": (1_000_000, 10_000)}
+    "smoke": (1200, 400),
+    "quick": (20_000, 1000),
+    "reduced": (500_000, 10_000),
+    "paper": (1_000_000, 10_000),
+}
 
 
-def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = None
-                 ) -> list[RunSpec]:
+def figure4_grid(
+    profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = None
+) -> list[RunSpec]:
     """Fig. 4: SAC and DRL-EG on the same seeds, hence the same initial weights."""
     from replicate.demos import default_demo_path
 
@@ -945,17 +1202,20 @@ def figure4_grid(profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = N
     if n_seeds <= 0:
         raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 4")
     if not default_demo_path(env_id).is_file():
-        raise HarnessError(f"Fig. 4 needs demonstrations for {env_id}, and none are committed",
-                           f"train its expert (`nox -s experts -- --env {env_id}`), then "
-                           "`nox -s demos`")
+        raise HarnessError(
+            f"Fig. 4 needs demonstrations for {env_id}, and none are committed",
+            f"train its expert (`nox -s experts -- --env {env_id}`), then `nox -s demos`",
+        )
     steps, interval = FIG4_BUDGETS[profile.name]
     specs = []
     for algo in ("sac", "drl-eg"):
         hyper = algorithm_overrides(algo, profile.overrides)
         if algo == "drl-eg":
             hyper.update(drl_eg_env_defaults(env_id, profile.name))
-        specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
-                  for seed in range(n_seeds)]
+        specs += [
+            RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
+            for seed in range(n_seeds)
+        ]
     return specs
 
 
@@ -983,8 +1243,13 @@ def figure4_report_grid(profile: Profile, env_id: str, seeds: int | None) -> lis
     return figure4_grid(profile, env_id, max(n_seeds, FIG4_SEEDS) if n_seeds > 0 else n_seeds)
 
 
-def rebuild_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
-                    store: Path = Path("runs"), out_dir: Path | None = None) -> Path | None:
+def rebuild_figure4(
+    profile: str = "quick",
+    env_id: str = FIG4_ENV,
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+) -> Path | None:
     """Write the Fig. 4 report from the runs already in the store; train nothing; the seeds
     it lacks are listed. Returns None, writing nothing, when the store holds no run of it (a
     committed report stays)."""
@@ -996,17 +1261,26 @@ def rebuild_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int |
     if outcome is None:
         return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_figure4_report(outcome, chosen, env_id, out_dir,
-                                guidance_settings(profile, outcome.runs, specs))
+    return write_figure4_report(
+        outcome, chosen, env_id, out_dir, guidance_settings(profile, outcome.runs, specs)
+    )
 
 
-def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | None = None,
-                store: Path = Path("runs"), out_dir: Path | None = None,
-                workers: int | None = None,
-                checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, executor: str = "local",
-                address: str | None = None, device: str = "auto",
-                gpu_workers: int | None = None, batch: int | None = None,
-                dry_run: bool = False) -> Path | None:
+def run_figure4(
+    profile: str = "quick",
+    env_id: str = FIG4_ENV,
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+    workers: int | None = None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    executor: str = "local",
+    address: str | None = None,
+    device: str = "auto",
+    gpu_workers: int | None = None,
+    batch: int | None = None,
+    dry_run: bool = False,
+) -> Path | None:
     """Train what Fig. 4 lacks and write its report; one that names runs the store lacks is
     replaced only by one naming as many (``report.write_unless_fewer``). Returns the
     report's path (None: nothing written, as with ``dry_run``, which prints what would
@@ -1015,17 +1289,34 @@ def run_figure4(profile: str = "quick", env_id: str = FIG4_ENV, seeds: int | Non
 
     chosen = get_profile(profile)
     if waits_for_t2_rule(profile, env_id, "drl-eg"):
-        raise HarnessError(f"Fig. 4 on {env_id} at the {profile} budget {T2_WAIT_REASON}",
-                           "run the ablation first, then fix MUJOCO_T2_RULE in "
-                           "replicate/experiments.py (docs/decisions.md: T2 on MuJoCo)")
+        raise HarnessError(
+            f"Fig. 4 on {env_id} at the {profile} budget {T2_WAIT_REASON}",
+            "run the ablation first, then fix MUJOCO_T2_RULE in "
+            "replicate/experiments.py (docs/decisions.md: T2 on MuJoCo)",
+        )
     to_train = figure4_grid(chosen, env_id, seeds)
     specs = figure4_report_grid(chosen, env_id, seeds)
-    outcome = train_cells(specs, to_train, Path(store), figure4_command(profile, env_id),
-                          dry_run=dry_run, workers=workers,
-                          checkpoint_interval=checkpoint_interval, executor=executor,
-                          address=address, device=device, gpu_workers=gpu_workers, batch=batch)
+    outcome = train_cells(
+        specs,
+        to_train,
+        Path(store),
+        figure4_command(profile, env_id),
+        dry_run=dry_run,
+        workers=workers,
+        checkpoint_interval=checkpoint_interval,
+        executor=executor,
+        address=address,
+        device=device,
+        gpu_workers=gpu_workers,
+        batch=batch,
+    )
     if dry_run:
         return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_saying_why(out_dir, Path(store), lambda out: write_figure4_report(
-        outcome, chosen, env_id, out, guidance_settings(profile, outcome.runs, specs)))
+    return write_saying_why(
+        out_dir,
+        Path(store),
+        lambda out: write_figure4_report(
+            outcome, chosen, env_id, out, guidance_settings(profile, outcome.runs, specs)
+        ),
+    )

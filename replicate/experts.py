@@ -27,8 +27,8 @@ from baselines.common.networks import TanhGaussianPolicy
 from baselines.registry import get_algorithm
 from envs import env_spec, make_env
 from replicate import provenance
-from replicate.errors import HarnessError
 from replicate.devices import check_device
+from replicate.errors import HarnessError
 
 EXPERT_DATA_DIR = "data/experts"
 EXPERT_ALGOS = ("sac", "sac-twin-q")
@@ -36,9 +36,12 @@ EXPERT_ALGOS = ("sac", "sac-twin-q")
 # healthy reward's local optimum), so Ant's expert is the twin-Q, learned-temperature SAC,
 # as are Hopper's (its V-SAC expert's demonstrations stopped at 2917, under the 3000 target)
 # and Walker2d's and HalfCheetah's (V-SAC: 1465 at 100k and 1590 at 200k steps).
-DEFAULT_EXPERT_ALGO: dict[str, str] = {"Ant-v5": "sac-twin-q", "Hopper-v5": "sac-twin-q",
-                                       "Walker2d-v5": "sac-twin-q",
-                                       "HalfCheetah-v5": "sac-twin-q"}
+DEFAULT_EXPERT_ALGO: dict[str, str] = {
+    "Ant-v5": "sac-twin-q",
+    "Hopper-v5": "sac-twin-q",
+    "Walker2d-v5": "sac-twin-q",
+    "HalfCheetah-v5": "sac-twin-q",
+}
 
 
 def expert_algo_for(env_id: str) -> str:
@@ -50,9 +53,15 @@ def expert_algo_for(env_id: str) -> str:
 EXPERT_SOURCE: dict[str, str] = {
     "dm_control/cartpole-swingup_sparse-v0": "dm_control/cartpole-swingup-v0",
 }
-EXPERT_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5",
-               "dm_control/cartpole-swingup-v0", "dm_control/ball_in_cup-catch-v0",
-               "dm_control/walker-walk-v0")
+EXPERT_ENVS = (
+    "Hopper-v5",
+    "Walker2d-v5",
+    "HalfCheetah-v5",
+    "Ant-v5",
+    "dm_control/cartpole-swingup-v0",
+    "dm_control/ball_in_cup-catch-v0",
+    "dm_control/walker-walk-v0",
+)
 
 
 def _file_name(env_id: str) -> str:
@@ -64,8 +73,9 @@ def expert_path(env_id: str) -> Path:
     from importlib import resources
 
     source = EXPERT_SOURCE.get(env_id, env_id)
-    return Path(str(resources.files("replicate").joinpath(EXPERT_DATA_DIR,
-                                                          f"{_file_name(source)}.pt")))
+    return Path(
+        str(resources.files("replicate").joinpath(EXPERT_DATA_DIR, f"{_file_name(source)}.pt"))
+    )
 
 
 def expert_training_curve(env_id: str) -> dict[str, Any] | None:
@@ -82,10 +92,13 @@ def expert_training_curve(env_id: str) -> dict[str, Any] | None:
     if not curve:
         return None
     curve = json.loads(curve) if isinstance(curve, str) else curve
-    return {"algo": metadata["algo"], "seed": metadata["seed"],
-            "steps": [int(step) for step, _ in curve],
-            "returns": [float(value) for _, value in curve],
-            "best_of": len(metadata.get("batch_best_eval_return", {})) or None}
+    return {
+        "algo": metadata["algo"],
+        "seed": metadata["seed"],
+        "steps": [int(step) for step, _ in curve],
+        "returns": [float(value) for _, value in curve],
+        "best_of": len(metadata.get("batch_best_eval_return", {})) or None,
+    }
 
 
 def work_dir_for(env_id: str, root: Path) -> Path:
@@ -97,22 +110,35 @@ def _checked_request(env_id: str, steps: int, algo: str | None) -> str:
     env_spec(env_id)
     algo = algo or expert_algo_for(env_id)
     if algo not in EXPERT_ALGOS:
-        raise HarnessError(f"experts are trained by {' or '.join(EXPERT_ALGOS)}, not {algo}",
-                           f"pass --algo {EXPERT_ALGOS[0]} or --algo {EXPERT_ALGOS[1]}")
+        raise HarnessError(
+            f"experts are trained by {' or '.join(EXPERT_ALGOS)}, not {algo}",
+            f"pass --algo {EXPERT_ALGOS[0]} or --algo {EXPERT_ALGOS[1]}",
+        )
     if env_id in EXPERT_SOURCE:
-        raise HarnessError(f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
-                           f"train that one: --env {EXPERT_SOURCE[env_id]}")
+        raise HarnessError(
+            f"{env_id} takes its expert from {EXPERT_SOURCE[env_id]}",
+            f"train that one: --env {EXPERT_SOURCE[env_id]}",
+        )
     if steps <= 0:
         raise HarnessError(f"step count must be positive, got {steps}", "pass --steps N, N > 0")
     return algo
 
 
-def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: int = 0,
-                 eval_interval: int = 10_000, eval_episodes: int = 5,
-                 checkpoint_interval: int = 10_000,
-                 on_steps: Callable[[int], None] = lambda n: None,
-                 algo: str | None = None, threads: int = 1, device: str = "auto") -> Path:
-    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return the path."""
+def train_expert(
+    env_id: str,
+    steps: int,
+    root: Path = Path("experts"),
+    seed: int = 0,
+    eval_interval: int = 10_000,
+    eval_episodes: int = 5,
+    checkpoint_interval: int = 10_000,
+    on_steps: Callable[[int], None] = lambda n: None,
+    algo: str | None = None,
+    threads: int = 1,
+    device: str = "auto",
+) -> Path:
+    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return its
+    path."""
     algo = _checked_request(env_id, steps, algo)
     work = work_dir_for(env_id, root)
     work.mkdir(parents=True, exist_ok=True)
@@ -120,11 +146,15 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     previous = json.loads(progress_file.read_text()) if progress_file.is_file() else {}
     if previous.get("total_steps", steps) != steps:
         # the budget is part of the run (beta-free SAC has no schedule, but keep it honest)
-        raise HarnessError(f"{work} holds an expert run with budget {previous['total_steps']}, "
-                           f"not {steps}", f"pass --steps {previous['total_steps']} or remove {work}")
+        raise HarnessError(
+            f"{work} holds an expert run with budget {previous['total_steps']}, not {steps}",
+            f"pass --steps {previous['total_steps']} or remove {work}",
+        )
     if previous.get("algo", algo) != algo:
-        raise HarnessError(f"{work} holds an expert run of {previous['algo']}, not {algo}",
-                           f"pass --algo {previous['algo']} or remove {work}")
+        raise HarnessError(
+            f"{work} holds an expert run of {previous['algo']}, not {algo}",
+            f"pass --algo {previous['algo']} or remove {work}",
+        )
     earlier_wall = float(previous.get("wall_time_s_before_this_sitting", 0.0))
     earlier_wall += float(previous.get("wall_time_s_this_sitting", 0.0))
     started = time.time()
@@ -133,14 +163,25 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     def on_eval(point: EvalPoint) -> None:
         curve.append(point)
         best = max(curve, key=lambda p: p.mean_return)
-        progress_file.write_text(json.dumps({
-            "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
-            "torch_threads": threads, "device": describe_device(resolved_device),
-            "steps_done": point.step, "best_step": best.step,
-            "best_mean_return": best.mean_return,
-            "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
-            "wall_time_s_before_this_sitting": earlier_wall,
-            "wall_time_s_this_sitting": time.time() - started}, indent=1))
+        progress_file.write_text(
+            json.dumps(
+                {
+                    "env_id": env_id,
+                    "algo": algo,
+                    "seed": seed,
+                    "total_steps": steps,
+                    "torch_threads": threads,
+                    "device": describe_device(resolved_device),
+                    "steps_done": point.step,
+                    "best_step": best.step,
+                    "best_mean_return": best.mean_return,
+                    "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
+                    "wall_time_s_before_this_sitting": earlier_wall,
+                    "wall_time_s_this_sitting": time.time() - started,
+                },
+                indent=1,
+            )
+        )
 
     if threads < 1:
         raise HarnessError(f"thread count must be positive, got {threads}", "pass --threads 1")
@@ -150,27 +191,41 @@ def train_expert(env_id: str, steps: int, root: Path = Path("experts"), seed: in
     saved_on = device_kind(previous.get("device", "cpu"))
     try:
         resolved_device = resume_device(
-            resolved_device, saved_on if (work / "checkpoint.pt").is_file() else None,
-            follow=device == "auto", what=f"the {env_id} expert ({work})")
+            resolved_device,
+            saved_on if (work / "checkpoint.pt").is_file() else None,
+            follow=device == "auto",
+            what=f"the {env_id} expert ({work})",
+        )
     except CheckpointDeviceError as exc:
-        raise HarnessError(str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
-                           ) from None
+        raise HarnessError(
+            str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
+        ) from None
     # one expert alone on a machine may use every core for its matrix products
     config = algorithm.make_config({"torch_threads": threads})
-    ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
-                       eval_episodes=eval_episodes, on_eval=on_eval, on_steps=on_steps,
-                       checkpoint_path=work / "checkpoint.pt",
-                       checkpoint_interval=checkpoint_interval,
-                       best_policy_path=work / "best_policy.pt", device=resolved_device)
+    ctx = TrainContext(
+        env_id=env_id,
+        seed=seed,
+        total_steps=steps,
+        eval_interval=eval_interval,
+        eval_episodes=eval_episodes,
+        on_eval=on_eval,
+        on_steps=on_steps,
+        checkpoint_path=work / "checkpoint.pt",
+        checkpoint_interval=checkpoint_interval,
+        best_policy_path=work / "best_policy.pt",
+        device=resolved_device,
+    )
     try:
         algorithm.train(ctx, config)
     except CheckpointDeviceError as exc:
-        raise HarnessError(str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
-                           ) from None
+        raise HarnessError(
+            str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
+        ) from None
     except torch.OutOfMemoryError:
-        raise HarnessError(f"the {env_id} expert ran out of GPU memory; its last checkpoint "
-                           "is kept", "run the same command again, or with --device cpu"
-                           ) from None
+        raise HarnessError(
+            f"the {env_id} expert ran out of GPU memory; its last checkpoint is kept",
+            "run the same command again, or with --device cpu",
+        ) from None
     (work / "checkpoint.pt").unlink(missing_ok=True)  # finished: the buffer is not needed
     return export_expert(env_id, root)
 
@@ -179,12 +234,19 @@ class _TimeUp(Exception):
     """Raised from the progress callback when a time-limited expert batch is out of time."""
 
 
-def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = Path("experts"),
-                       eval_interval: int = 10_000, eval_episodes: int = 5,
-                       on_steps: Callable[[int], None] = lambda n: None,
-                       algo: str | None = None, device: str = "auto",
-                       env_workers: int | None = None,
-                       time_limit_s: float | None = None) -> Path:
+def train_expert_batch(
+    env_id: str,
+    steps: int,
+    seeds: list[int],
+    root: Path = Path("experts"),
+    eval_interval: int = 10_000,
+    eval_episodes: int = 5,
+    on_steps: Callable[[int], None] = lambda n: None,
+    algo: str | None = None,
+    device: str = "auto",
+    env_workers: int | None = None,
+    time_limit_s: float | None = None,
+) -> Path:
     """Train one expert run per seed as one seed batch, keep the member with the best
     evaluation, export it and return the path.
 
@@ -199,16 +261,21 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
 
     algo = _checked_request(env_id, steps, algo)
     if len(set(seeds)) != len(seeds) or len(seeds) < 2:
-        raise HarnessError(f"an expert batch needs two or more distinct seeds, got {seeds}",
-                           "pass --seeds 1-8 (or --seed N for one run)")
+        raise HarnessError(
+            f"an expert batch needs two or more distinct seeds, got {seeds}",
+            "pass --seeds 1-8 (or --seed N for one run)",
+        )
     work = work_dir_for(env_id, root)
     if (work / "checkpoint.pt").is_file():
-        raise HarnessError(f"{work} holds a one-run expert in training",
-                           "finish or remove it, or pass another --root")
+        raise HarnessError(
+            f"{work} holds a one-run expert in training",
+            "finish or remove it, or pass another --root",
+        )
     check_device(device)
     resolved_device = resolve_device(device, True)
-    workers = env_workers if env_workers is not None else (
-        0 if resolved_device == "cpu" else len(seeds))
+    workers = (
+        env_workers if env_workers is not None else (0 if resolved_device == "cpu" else len(seeds))
+    )
     started = time.time()
     members_dir = work / "batch"
     curves: dict[int, list[EvalPoint]] = {seed: [] for seed in seeds}
@@ -217,15 +284,27 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
         curve = curves[seed]
         curve.append(point)
         best = max(curve, key=lambda p: p.mean_return)
-        (members_dir / f"seed-{seed}" / "progress.json").write_text(json.dumps({
-            "env_id": env_id, "algo": algo, "seed": seed, "total_steps": steps,
-            "torch_threads": 1, "device": describe_device(resolved_device),
-            "steps_done": point.step, "best_step": best.step,
-            "best_mean_return": best.mean_return,
-            "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
-            "batch_seeds": list(seeds), "time_limit_s": time_limit_s,
-            "wall_time_s_before_this_sitting": 0.0,
-            "wall_time_s_this_sitting": time.time() - started}, indent=1))
+        (members_dir / f"seed-{seed}" / "progress.json").write_text(
+            json.dumps(
+                {
+                    "env_id": env_id,
+                    "algo": algo,
+                    "seed": seed,
+                    "total_steps": steps,
+                    "torch_threads": 1,
+                    "device": describe_device(resolved_device),
+                    "steps_done": point.step,
+                    "best_step": best.step,
+                    "best_mean_return": best.mean_return,
+                    "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
+                    "batch_seeds": list(seeds),
+                    "time_limit_s": time_limit_s,
+                    "wall_time_s_before_this_sitting": 0.0,
+                    "wall_time_s_this_sitting": time.time() - started,
+                },
+                indent=1,
+            )
+        )
 
     def count(n: int) -> None:
         on_steps(n)
@@ -236,11 +315,18 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
     for seed in seeds:
         (members_dir / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
         (members_dir / f"seed-{seed}" / "best_policy.pt").unlink(missing_ok=True)
-        contexts.append(TrainContext(
-            env_id=env_id, seed=seed, total_steps=steps, eval_interval=eval_interval,
-            eval_episodes=eval_episodes, on_eval=lambda p, s=seed: progress(s, p),
-            best_policy_path=members_dir / f"seed-{seed}" / "best_policy.pt",
-            device=resolved_device))
+        contexts.append(
+            TrainContext(
+                env_id=env_id,
+                seed=seed,
+                total_steps=steps,
+                eval_interval=eval_interval,
+                eval_episodes=eval_episodes,
+                on_eval=lambda p, s=seed: progress(s, p),
+                best_policy_path=members_dir / f"seed-{seed}" / "best_policy.pt",
+                device=resolved_device,
+            )
+        )
     algorithm = get_algorithm(algo)
     config = algorithm.make_config({"torch_threads": 1})
     bctx = BatchContext(contexts, device=resolved_device, env_workers=workers, on_steps=count)
@@ -249,12 +335,16 @@ def train_expert_batch(env_id: str, steps: int, seeds: list[int], root: Path = P
     except _TimeUp:
         pass
     except torch.OutOfMemoryError:
-        raise HarnessError(f"the {env_id} expert batch ran out of GPU memory",
-                           "pass fewer --seeds, or --device cpu") from None
+        raise HarnessError(
+            f"the {env_id} expert batch ran out of GPU memory",
+            "pass fewer --seeds, or --device cpu",
+        ) from None
     trained = [s for s in seeds if (members_dir / f"seed-{s}" / "best_policy.pt").is_file()]
     if not trained:
-        raise HarnessError(f"no member of the {env_id} expert batch finished an evaluation",
-                           "give it more time (--minutes)")
+        raise HarnessError(
+            f"no member of the {env_id} expert batch finished an evaluation",
+            "give it more time (--minutes)",
+        )
     chosen = max(trained, key=lambda s: max(p.mean_return for p in curves[s]))
     chosen_dir = members_dir / f"seed-{chosen}"
     summary = json.loads((chosen_dir / "progress.json").read_text())
@@ -269,39 +359,53 @@ def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
     work = work_dir_for(env_id, root)
     best_file, progress_file = work / "best_policy.pt", work / "progress.json"
     if not best_file.is_file() or not progress_file.is_file():
-        raise HarnessError(f"no expert training found in {work}",
-                           f"train one first: python -m replicate expert --env {env_id}")
+        raise HarnessError(
+            f"no expert training found in {work}",
+            f"train one first: python -m replicate expert --env {env_id}",
+        )
     best = torch.load(best_file, weights_only=True, map_location="cpu")
     progress = json.loads(progress_file.read_text())
     algo = progress.get("algo", "sac")
     config = get_algorithm(algo).make_config({"torch_threads": progress.get("torch_threads", 1)})
     metadata = {
-        "env_id": env_id, "algo": algo, "seed": progress["seed"],
+        "env_id": env_id,
+        "algo": algo,
+        "seed": progress["seed"],
         "hidden_sizes": list(config.hidden_sizes),
-        "hyperparameters": {k: (list(v) if isinstance(v, tuple) else v)
-                            for k, v in dataclasses.asdict(config).items()},
-        "budget_steps": progress["total_steps"], "steps_trained": progress["steps_done"],
+        "hyperparameters": {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in dataclasses.asdict(config).items()
+        },
+        "budget_steps": progress["total_steps"],
+        "steps_trained": progress["steps_done"],
         # a batch keeps its best member; every member's best evaluation, by seed
-        **({"batch_best_eval_return": progress["batch_best"]} if "batch_best" in progress
-           else {}),
-        "best_step": int(best["step"]), "best_eval_return": float(best["mean_return"]),
-        "wall_time_s": round(progress["wall_time_s_before_this_sitting"]
-                             + progress["wall_time_s_this_sitting"], 1),
+        **({"batch_best_eval_return": progress["batch_best"]} if "batch_best" in progress else {}),
+        "best_step": int(best["step"]),
+        "best_eval_return": float(best["mean_return"]),
+        "wall_time_s": round(
+            progress["wall_time_s_before_this_sitting"] + progress["wall_time_s_this_sitting"], 1
+        ),
         "curve": progress["curve"],
         "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}"
-                   + (f" --seeds {','.join(map(str, progress['batch_seeds']))}"
-                      if "batch_seeds" in progress else "")
-                   + (f" --minutes {progress['time_limit_s'] / 60:g}"
-                      if progress.get("time_limit_s") else "")
-                   + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}")
-                   + ("" if progress.get("torch_threads", 1) == 1
-                      else f" --threads {progress['torch_threads']}"),
+        + (
+            f" --seeds {','.join(map(str, progress['batch_seeds']))}"
+            if "batch_seeds" in progress
+            else ""
+        )
+        + (f" --minutes {progress['time_limit_s'] / 60:g}" if progress.get("time_limit_s") else "")
+        + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}")
+        + (
+            ""
+            if progress.get("torch_threads", 1) == 1
+            else f" --threads {progress['torch_threads']}"
+        ),
         "git_revision": provenance.git_revision(),
         "device": progress.get("device", "cpu"),
     }
     # CPU training reproduces bit for bit; the command names the device it ran on
-    metadata["command"] += " --device " + ("cuda" if metadata["device"].startswith("cuda")
-                                           else "cpu")
+    metadata["command"] += " --device " + (
+        "cuda" if metadata["device"].startswith("cuda") else "cpu"
+    )
     # half precision halves the committed file; demonstrations are rolled out from these
     # rounded weights, so the files and the returns they record agree
     metadata["weights_dtype"] = "float16"
@@ -317,19 +421,29 @@ class ExpertPolicy:
     def __init__(self, env_id: str, path: Path | None = None):
         path = Path(path) if path else expert_path(env_id)
         if not path.is_file():
-            raise HarnessError(f"no expert for {env_id} at {path}",
-                               f"train one: python -m replicate expert --env "
-                               f"{EXPERT_SOURCE.get(env_id, env_id)} --steps 1000000")
+            raise HarnessError(
+                f"no expert for {env_id} at {path}",
+                f"train one: python -m replicate expert --env "
+                f"{EXPERT_SOURCE.get(env_id, env_id)} --steps 1000000",
+            )
         saved = torch.load(path, weights_only=True, map_location="cpu")
         self.metadata: dict[str, Any] = saved["metadata"]
         env = make_env(env_id)
         space = env.action_space
-        self.policy = TanhGaussianPolicy(env.observation_space.shape[0], space.shape[0],
-                                         space.low, space.high,
-                                         tuple(self.metadata["hidden_sizes"]))
+        self.policy = TanhGaussianPolicy(
+            env.observation_space.shape[0],
+            space.shape[0],
+            space.low,
+            space.high,
+            tuple(self.metadata["hidden_sizes"]),
+        )
         env.close()
-        self.policy.load_state_dict({name: (t.float() if t.is_floating_point() else t)
-                                     for name, t in saved["policy"].items()})
+        self.policy.load_state_dict(
+            {
+                name: (t.float() if t.is_floating_point() else t)
+                for name, t in saved["policy"].items()
+            }
+        )
         self.policy.eval()
 
     @torch.no_grad()

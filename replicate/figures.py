@@ -19,11 +19,11 @@ import matplotlib
 
 matplotlib.use("Agg")  # no display is ever needed
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import seaborn as sns  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
-import numpy as np  # noqa: E402
-import seaborn as sns  # noqa: E402
 
 from replicate.stats import CONFIDENCE  # noqa: E402
 
@@ -36,17 +36,17 @@ FIG3_COLUMNS = 2  # panels side by side in Fig. 3 and Fig. 4: about 550 px each 
 # colour-blind safe hues for Fig. 3's algorithms, darker shades of a family's colour for
 # its variants.
 ALGO_COLORS: dict[str, str] = {
-    "sac": "#0072b2",           # blue
-    "ppo": "#009e73",           # bluish green
-    "ppo-bc": "#56b4e9",        # sky blue
-    "ddpgfd": "#e69f00",        # orange
-    "drl-eg": "#d55e00",        # vermillion
-    "drl-eg-gmm": "#cc79a7",    # reddish purple
-    "ibrl": "#1a1a1a",          # near black
-    "rlpd": "#6a3d9a",          # violet
-    "jsrl": "#9e9a00",          # olive
+    "sac": "#0072b2",  # blue
+    "ppo": "#009e73",  # bluish green
+    "ppo-bc": "#56b4e9",  # sky blue
+    "ddpgfd": "#e69f00",  # orange
+    "drl-eg": "#d55e00",  # vermillion
+    "drl-eg-gmm": "#cc79a7",  # reddish purple
+    "ibrl": "#1a1a1a",  # near black
+    "rlpd": "#6a3d9a",  # violet
+    "jsrl": "#9e9a00",  # olive
     "drl-eg-twin-q": "#8c2d04",  # dark vermillion
-    "sac-twin-q": "#00476e",    # dark blue
+    "sac-twin-q": "#00476e",  # dark blue
 }
 # An algorithm the table lacks gets one of these, fixed by its name, so that it too keeps
 # its colour from figure to figure.
@@ -111,12 +111,19 @@ def panel_order(envs: list[str], env_order: list[str]) -> list[str]:
 def set_theme() -> None:
     """The look every figure shares."""
     sns.set_theme(style="whitegrid", context="notebook")
-    plt.rcParams.update({"legend.fontsize": 11, "axes.titlesize": 12,
-                         "figure.titlesize": 13, "legend.title_fontsize": 11})
+    plt.rcParams.update(
+        {
+            "legend.fontsize": 11,
+            "axes.titlesize": 12,
+            "figure.titlesize": 13,
+            "legend.title_fontsize": 11,
+        }
+    )
 
 
-def panel_grid(n_panels: int, columns: int, panel_height: float,
-               legend_height: float = 0.0) -> tuple[plt.Figure, list[Any], Any]:
+def panel_grid(
+    n_panels: int, columns: int, panel_height: float, legend_height: float = 0.0
+) -> tuple[plt.Figure, list[Any], Any]:
     """A figure of ``n_panels`` panels, ``columns`` a row, at the content column's width:
     (figure, the panels' axes, the first free cell's axes for a legend or None when the
     grid is full). ``legend_height`` (inches) is added below for a legend a full grid
@@ -131,22 +138,33 @@ def panel_grid(n_panels: int, columns: int, panel_height: float,
     return fig, axes[:n_panels], (axes[n_panels] if free else None)
 
 
-def shared_legend(fig: plt.Figure, handles: list[Any], labels: list[str], slot: Any = None,
-                  columns: int | None = None) -> None:
+def shared_legend(
+    fig: plt.Figure,
+    handles: list[Any],
+    labels: list[str],
+    slot: Any = None,
+    columns: int | None = None,
+) -> None:
     """One legend for all panels: centred in ``slot`` (a free cell of the grid) when there
     is one, else below the panels, ``columns`` entries a row (all of them by default)."""
     if slot is not None:
-        slot.legend(handles, labels, loc="center", frameon=False, ncols=columns or 1,
-                    handlelength=2.6)
+        slot.legend(
+            handles, labels, loc="center", frameon=False, ncols=columns or 1, handlelength=2.6
+        )
     else:
-        fig.legend(handles, labels, loc="outside lower center", frameon=False,
-                   ncols=columns or len(labels), handlelength=2.6)
+        fig.legend(
+            handles,
+            labels,
+            loc="outside lower center",
+            frameon=False,
+            ncols=columns or len(labels),
+            handlelength=2.6,
+        )
 
 
 def algo_handle(algo: str, **style: Any) -> Line2D:
     """A legend entry's line in ``algo``'s colour."""
-    return Line2D([], [], color=algo_color(algo), linewidth=style.pop("linewidth", 2.2),
-                  **style)
+    return Line2D([], [], color=algo_color(algo), linewidth=style.pop("linewidth", 2.2), **style)
 
 
 def seed_note(counts: dict[str, int]) -> str:
@@ -161,21 +179,27 @@ def seed_note(counts: dict[str, int]) -> str:
             others.setdefault(counts[algo], []).append(algo)
     if not others:
         return f"{usual} {noun} each" if len(counts) > 1 else f"{usual} {noun}"
-    return f"{usual} {noun}; " + "; ".join(f"{', '.join(algos)}: {n}"
-                                          for n, algos in sorted(others.items()))
+    return f"{usual} {noun}; " + "; ".join(
+        f"{', '.join(algos)}: {n}" for n, algos in sorted(others.items())
+    )
 
 
 # Published SAC on the curves: the same algorithm as ours open, modern twin-Q SAC filled.
 PUBLISHED_MARKERS = {"V-network SAC": ("o", "white"), "twin-Q SAC": ("D", "0.1")}
-PUBLISHED_LABELS = {"V-network SAC": "published V-network SAC (Spinning Up, Coach; -v2)",
-                    "twin-Q SAC": "published twin-Q SAC (Tianshou, -v3)"}
+PUBLISHED_LABELS = {
+    "V-network SAC": "published V-network SAC (Spinning Up, Coach; -v2)",
+    "twin-Q SAC": "published twin-Q SAC (Tianshou, -v3)",
+}
 
 
-def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float],
-                        title: str,
-                        reference_points: dict[str, list[tuple[int, float, float, str]]] | None = None,
-                        env_order: list[str] | None = None,
-                        confidence: float = CONFIDENCE) -> bytes:
+def learning_curves_png(
+    bands: list[CurveBand],
+    reference_lines: dict[str, float],
+    title: str,
+    reference_points: dict[str, list[tuple[int, float, float, str]]] | None = None,
+    env_order: list[str] | None = None,
+    confidence: float = CONFIDENCE,
+) -> bytes:
     """Fig. 3: one panel per env, ``FIG3_COLUMNS`` a row; per algorithm each seed's curve
     as a thin line under the mean over seeds (thick) with its ``confidence`` t-interval
     band; one legend for all panels.
@@ -195,8 +219,7 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
         here = sorted((b for b in bands if b.env_id == env_id), key=lambda b: algos.index(b.algo))
         for b in here:
             color = algo_color(b.algo)
-            ax.fill_between(b.steps, b.low, b.high, color=color, alpha=0.16, linewidth=0,
-                            zorder=1)
+            ax.fill_between(b.steps, b.low, b.high, color=color, alpha=0.16, linewidth=0, zorder=1)
             if b.per_seed is not None and len(b.per_seed) > 1:
                 seeds_any = True
                 for curve in b.per_seed:
@@ -205,18 +228,34 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
             ax.plot(b.steps, b.mean, color=algo_color(b.algo), linewidth=2.2, zorder=3)
         if env_id in reference_lines:
             demos_any = True
-            ax.axhline(reference_lines[env_id], color=REFERENCE_COLOR, linestyle="--",
-                       linewidth=1.2, zorder=4)
+            ax.axhline(
+                reference_lines[env_id],
+                color=REFERENCE_COLOR,
+                linestyle="--",
+                linewidth=1.2,
+                zorder=4,
+            )
         for family, (marker, face) in PUBLISHED_MARKERS.items():
             published = [p for p in (reference_points or {}).get(env_id, []) if p[3] == family]
             if published:
                 published_families.add(family)
                 xs, ys, sds = (list(v) for v in zip(*(p[:3] for p in published)))
                 sds = [0.0 if sd != sd else sd for sd in sds]  # a source without a spread
-                ax.errorbar(xs, ys, yerr=sds, fmt=marker, color="0.1", markerfacecolor=face,
-                            markersize=6, capsize=3, linewidth=1.0, zorder=5)
-        ax.set_title(f"{env_id}\n{seed_note({b.algo: b.n_runs for b in here})}",
-                     fontsize=12, linespacing=1.4)
+                ax.errorbar(
+                    xs,
+                    ys,
+                    yerr=sds,
+                    fmt=marker,
+                    color="0.1",
+                    markerfacecolor=face,
+                    markersize=6,
+                    capsize=3,
+                    linewidth=1.0,
+                    zorder=5,
+                )
+        ax.set_title(
+            f"{env_id}\n{seed_note({b.algo: b.n_runs for b in here})}", fontsize=12, linespacing=1.4
+        )
         format_steps_axis(ax)
         ax.set_ylabel("return")
     handles = [algo_handle(a) for a in algos]
@@ -234,8 +273,17 @@ def learning_curves_png(bands: list[CurveBand], reference_lines: dict[str, float
         labels.append("demonstrations' mean return")
     for family, (marker, face) in PUBLISHED_MARKERS.items():
         if family in published_families:
-            handles.append(Line2D([], [], color="0.1", marker=marker, markerfacecolor=face,
-                                  linestyle="none", markersize=6))
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    color="0.1",
+                    marker=marker,
+                    markerfacecolor=face,
+                    linestyle="none",
+                    markersize=6,
+                )
+            )
             labels.append(PUBLISHED_LABELS[family])
     shared_legend(fig, handles, labels, slot, columns=None if slot is not None else 4)
     fig.suptitle(title)
@@ -247,8 +295,16 @@ def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], xlabel: str) -> Non
     algos = list(iqm)
     for row, algo in enumerate(algos):
         value, low, high = iqm[algo]
-        ax.errorbar([value], [row], xerr=[[value - low], [high - value]], fmt="o",
-                    color=algo_color(algo), capsize=4, markersize=7, linewidth=2)
+        ax.errorbar(
+            [value],
+            [row],
+            xerr=[[value - low], [high - value]],
+            fmt="o",
+            color=algo_color(algo),
+            capsize=4,
+            markersize=7,
+            linewidth=2,
+        )
     ax.set_yticks(range(len(algos)), algos)
     for label, algo in zip(ax.get_yticklabels(), algos, strict=True):
         label.set_color(algo_color(algo))
@@ -256,9 +312,12 @@ def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], xlabel: str) -> Non
     ax.set_xlabel(xlabel)
 
 
-def draw_profiles(ax, taus: np.ndarray,
-                  profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-                  xlabel: str) -> None:
+def draw_profiles(
+    ax,
+    taus: np.ndarray,
+    profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    xlabel: str,
+) -> None:
     """Performance profiles (fraction of runs above each score) with CI bands."""
     for algo, (value, low, high) in profiles.items():
         ax.plot(taus, value, color=algo_color(algo), label=algo, linewidth=2)
@@ -309,22 +368,30 @@ def png_panels(png: bytes) -> list[list[float]]:
     return json.loads(Image.open(io.BytesIO(png)).text[PANELS_KEY])
 
 
-def aggregate_png(iqm: dict[str, tuple[float, float, float]], taus: np.ndarray,
-                  profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> bytes:
+def aggregate_png(
+    iqm: dict[str, tuple[float, float, float]],
+    taus: np.ndarray,
+    profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> bytes:
     """Left: IQM of normalised final scores with CIs. Right: performance profiles (fraction
     of runs above each normalised score) with CI bands."""
     set_theme()
     order = algo_order(list(iqm))
     fig, (left, right), _ = panel_grid(2, 2, 3.8, legend_height=0.6)
     draw_iqm(left, {a: iqm[a] for a in order}, "IQM of final score / demonstrations' return")
-    draw_profiles(right, taus, {a: profiles[a] for a in order if a in profiles},
-                  "score tau (final return / demonstrations' return)")
+    draw_profiles(
+        right,
+        taus,
+        {a: profiles[a] for a in order if a in profiles},
+        "score tau (final return / demonstrations' return)",
+    )
     shared_legend(fig, [algo_handle(a) for a in order], order)
     return png_bytes(fig)
 
 
-def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, ...]]]],
-                      title: str) -> bytes:
+def paired_curves_png(
+    panels: list[tuple[int, dict[str, tuple[np.ndarray, ...]]]], title: str
+) -> bytes:
     """Fig. 4: one panel per seed, ``FIG3_COLUMNS`` a row, one line per algorithm: the
     paired runs from (steps, evaluation returns[, training episodes' returns, drawn dotted
     where recorded]); one legend for all panels."""
@@ -338,16 +405,19 @@ def paired_curves_png(panels: list[tuple[int, dict[str, tuple[np.ndarray, ...]]]
             ax.plot(steps, returns, color=algo_color(algo), linewidth=2, zorder=3)
             if earned and np.isfinite(earned[0]).any():
                 dotted = True
-                ax.plot(steps, earned[0], color=algo_color(algo), linestyle=":",
-                        linewidth=1.3, zorder=2)
+                ax.plot(
+                    steps, earned[0], color=algo_color(algo), linestyle=":", linewidth=1.3, zorder=2
+                )
         ax.set_title(f"seed {seed}")
         format_steps_axis(ax)
         ax.set_ylabel("return")
     handles = [algo_handle(a) for a in algos]
     labels = list(algos)
     if dotted:
-        handles += [Line2D([], [], color="0.45", linewidth=2),
-                    Line2D([], [], color="0.45", linewidth=1.3, linestyle=":")]
+        handles += [
+            Line2D([], [], color="0.45", linewidth=2),
+            Line2D([], [], color="0.45", linewidth=1.3, linestyle=":"),
+        ]
         labels += ["deterministic evaluation", "training episodes"]
     shared_legend(fig, handles, labels, slot)
     fig.suptitle(title)

@@ -95,10 +95,15 @@ def read_report(root: Path, directory: Path) -> ReportEntry:
 def _describe(entry: ReportEntry, summary: dict[str, Any]) -> None:
     if entry.kind == "fig3":
         envs = [f["env_id"] for f in summary["final_returns"]]
-        entry.covers = (f"Fig. 3: learning curves on {len(set(envs))} env(s), claims 1-4"
-                        if envs else "Fig. 3: no runs yet")
-        entry.budget = ", ".join(f"{env.split('-v')[0].split('Continuous')[0]} {_steps(steps)}"
-                                 for env, steps in summary.get("budgets", {}).items())
+        entry.covers = (
+            f"Fig. 3: learning curves on {len(set(envs))} env(s), claims 1-4"
+            if envs
+            else "Fig. 3: no runs yet"
+        )
+        entry.budget = ", ".join(
+            f"{env.split('-v')[0].split('Continuous')[0]} {_steps(steps)}"
+            for env, steps in summary.get("budgets", {}).items()
+        )
         entry.seeds = _seed_range([len(f["seeds"]) for f in summary["final_returns"]])
     elif entry.kind == "fig4":
         entry.covers = f"Fig. 4: SAC and DRL-EG on {summary['env_id']} from shared seeds, claim 5"
@@ -119,8 +124,10 @@ def _describe(entry: ReportEntry, summary: dict[str, Any]) -> None:
 
 def find_reports(root: Path) -> list[ReportEntry]:
     """Every report under ``root`` (reports/), smoke ones and benchmarks left out."""
-    directories = sorted({p.parent for p in root.rglob("index.html")} |
-                         {p.parent for p in root.rglob("summary.json")})
+    directories = sorted(
+        {p.parent for p in root.rglob("index.html")}
+        | {p.parent for p in root.rglob("summary.json")}
+    )
     entries = []
     for directory in directories:
         if directory == root or {"smoke", "bench"} & set(directory.relative_to(root).parts):
@@ -155,8 +162,13 @@ def verdict_table(entries: list[ReportEntry]) -> tuple[list[str], list[dict[str,
                 "verdict": claim["verdict"].split(":")[0],
                 "href": f"{report.path}/index.html#claim-{claim_id}",
                 "budget": _steps(claim["steps"]) if claim.get("steps") else "",
-                "seeds": ("" if not seeds else f"{seeds[0]} seeds" if seeds[0] == seeds[1]
-                          else f"{seeds[0]}-{seeds[1]} seeds"),
+                "seeds": (
+                    ""
+                    if not seeds
+                    else f"{seeds[0]} seeds"
+                    if seeds[0] == seeds[1]
+                    else f"{seeds[0]}-{seeds[1]} seeds"
+                ),
                 "decides": claim.get("decides", []),
                 "not_met": claim.get("not_met", []),
             }
@@ -187,12 +199,29 @@ def write_front_door(root: Path = Path("reports")) -> Path:
     entries = find_reports(root)
     profiles, rows = verdict_table(entries)
     figure, figure_from = headline_figure(root, entries)
-    largest = next((e for p in reversed(PROFILE_ORDER) for e in entries
-                    if e.kind == "fig3" and e.profile == p and not e.unavailable), None)
+    largest = next(
+        (
+            e
+            for p in reversed(PROFILE_ORDER)
+            for e in entries
+            if e.kind == "fig3" and e.profile == p and not e.unavailable
+        ),
+        None,
+    )
     caveats = largest.summary.get("threats", []) if largest else []
-    html = report_environment().get_template("index.html").render(
-        profiles=profiles, rows=rows, entries=entries, figure=figure, figure_from=figure_from,
-        caveats=caveats, caveats_from=largest.path if largest else None,
-        generated=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    html = (
+        report_environment()
+        .get_template("index.html")
+        .render(
+            profiles=profiles,
+            rows=rows,
+            entries=entries,
+            figure=figure,
+            figure_from=figure_from,
+            caveats=caveats,
+            caveats_from=largest.path if largest else None,
+            generated=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        )
+    )
     _atomic_write(root / "index.html", html.encode())
     return root / "index.html"

@@ -12,8 +12,21 @@ from pathlib import Path
 
 from baselines.common.device import can_flush_denormals
 
-PACKAGES = ("torch", "numpy", "scipy", "gymnasium", "mujoco", "dm-control", "shimmy",
-            "scikit-learn", "pandas", "seaborn", "matplotlib", "jinja2", "drl-eg-replicate")
+PACKAGES = (
+    "torch",
+    "numpy",
+    "scipy",
+    "gymnasium",
+    "mujoco",
+    "dm-control",
+    "shimmy",
+    "scikit-learn",
+    "pandas",
+    "seaborn",
+    "matplotlib",
+    "jinja2",
+    "drl-eg-replicate",
+)
 
 
 def package_versions() -> dict[str, str]:
@@ -40,12 +53,31 @@ def git_revision() -> str:
 def revision_at(where: Path) -> str:
     """The commit checked out at ``where``, with '+dirty' when tracked files changed outside
     the run store and the reports (what the harness itself writes is not code)."""
-    rev = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"],
-                         capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-    dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
-                            "--untracked-files=no", "--", ":(top)", ":(top,exclude)runs",
-                            ":(top,exclude)reports"],
-                           capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    rev = subprocess.run(
+        ["git", "-C", str(where), "rev-parse", "HEAD"],
+        capture_output=True,
+        text=True,
+        timeout=10,
+        check=True,
+    ).stdout.strip()
+    dirty = subprocess.run(
+        [
+            "git",
+            "-C",
+            str(where),
+            "status",
+            "--porcelain",
+            "--untracked-files=no",
+            "--",
+            ":(top)",
+            ":(top,exclude)runs",
+            ":(top,exclude)reports",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=10,
+        check=True,
+    ).stdout.strip()
     return rev + ("+dirty" if dirty else "")
 
 
@@ -85,8 +117,13 @@ def machine() -> dict[str, str | int]:
     # the interpreter by its venv path inside the project (not resolved: a venv's python is
     # a link to the system's), by its name alone outside it
     executable = portable_path(sys.executable, resolve=False)
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_model": cpu_model(), "cpu_count": os.cpu_count() or 0,
-            "flushes_denormals": can_flush_denormals(),
-            "python_executable": executable if not Path(executable).is_absolute()
-            else Path(executable).name}
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_model": cpu_model(),
+        "cpu_count": os.cpu_count() or 0,
+        "flushes_denormals": can_flush_denormals(),
+        "python_executable": executable
+        if not Path(executable).is_absolute()
+        else Path(executable).name,
+    }

@@ -16,14 +16,23 @@ from typing import Any, Callable
 import numpy as np
 
 from replicate import provenance
-from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
-from replicate.figures import CurveBand, aggregate_png, learning_curves_png
-from replicate.runner import Run
 from replicate.claims import Group
+from replicate.figures import CurveBand, aggregate_png, learning_curves_png
+from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
 from replicate.published import FAMILY_TITLES, published_points
-from replicate.stats import (CONFIDENCE, T_METHOD, interquartile_mean, paired_mean_difference,
-                             probability_of_improvement, score_profile, steps_to_reach,
-                             stratified_bootstrap_ci, substream, t_mean, t_mean_columns)
+from replicate.runner import Run
+from replicate.stats import (
+    CONFIDENCE,
+    interquartile_mean,
+    paired_mean_difference,
+    probability_of_improvement,
+    score_profile,
+    steps_to_reach,
+    stratified_bootstrap_ci,
+    substream,
+    t_mean,
+    t_mean_columns,
+)
 from replicate.templating import report_environment
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
@@ -52,8 +61,9 @@ def group_runs(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
 def curve_matrix(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
     """(steps, returns[runs, steps]) over the evaluation steps that every run shares."""
     common = sorted(set.intersection(*(set(r.curve["step"]) for r in runs)))
-    matrix = np.stack([r.curve.set_index("step").loc[common, "return_mean"].to_numpy(float)
-                       for r in runs])
+    matrix = np.stack(
+        [r.curve.set_index("step").loc[common, "return_mean"].to_numpy(float) for r in runs]
+    )
     return np.asarray(common), matrix
 
 
@@ -63,12 +73,26 @@ def summarise(runs: list[Run]) -> tuple[list[CurveBand], list[FinalReturns]]:
     for (env_id, algo), members in sorted(group_runs(runs).items()):
         steps, matrix = curve_matrix(members)
         band = t_mean_columns(matrix)
-        bands.append(CurveBand(algo, env_id, steps, band.value, band.low, band.high, len(members),
-                               matrix, [r.spec["seed"] for r in members]))
+        bands.append(
+            CurveBand(
+                algo,
+                env_id,
+                steps,
+                band.value,
+                band.low,
+                band.high,
+                len(members),
+                matrix,
+                [r.spec["seed"] for r in members],
+            )
+        )
         last = matrix[:, -1]
         est = t_mean(last)
-        finals.append(FinalReturns(env_id, algo, [r.spec["seed"] for r in members], last,
-                                   est.value, est.low, est.high))
+        finals.append(
+            FinalReturns(
+                env_id, algo, [r.spec["seed"] for r in members], last, est.value, est.low, est.high
+            )
+        )
     return bands, finals
 
 
@@ -91,13 +115,21 @@ def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
     groups = {}
     for (env_id, algo), members in group_runs(runs).items():
         steps, matrix = curve_matrix(members)
-        groups[(env_id, algo)] = Group(env_id, algo, [r.spec["seed"] for r in members],
-                                       matrix[:, -1], matrix, steps, training_rates(members))
+        groups[(env_id, algo)] = Group(
+            env_id,
+            algo,
+            [r.spec["seed"] for r in members],
+            matrix[:, -1],
+            matrix,
+            steps,
+            training_rates(members),
+        )
     return groups
 
 
-def drl_eg_improvement(scores: dict[str, np.ndarray], algos: list[str],
-                       rng: np.random.Generator) -> list[dict[str, Any]]:
+def drl_eg_improvement(
+    scores: dict[str, np.ndarray], algos: list[str], rng: np.random.Generator
+) -> list[dict[str, Any]]:
     """P(DRL-EG > each other algorithm) on (runs, tasks) scores, with stratified-bootstrap
     CIs; empty without DRL-EG."""
     if "drl-eg" not in scores:
@@ -105,28 +137,41 @@ def drl_eg_improvement(scores: dict[str, np.ndarray], algos: list[str],
     rows = []
     for other in algos:
         if other != "drl-eg":
-            est = stratified_bootstrap_ci(probability_of_improvement,
-                                          (scores["drl-eg"], scores[other]), rng)
-            rows.append({"other": other, "value": float(est.value), "low": float(est.low),
-                         "high": float(est.high)})
+            est = stratified_bootstrap_ci(
+                probability_of_improvement, (scores["drl-eg"], scores[other]), rng
+            )
+            rows.append(
+                {
+                    "other": other,
+                    "value": float(est.value),
+                    "low": float(est.low),
+                    "high": float(est.high),
+                }
+            )
     return rows
 
 
-def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float],
-                      rng: np.random.Generator) -> dict[str, Any] | None:
+def aggregate_metrics(
+    groups: dict[tuple[str, str], Group], demo_returns: dict[str, float], rng: np.random.Generator
+) -> dict[str, Any] | None:
     """IQM, performance profiles and probability of improvement over the envs that have
     demonstrations, on final returns divided by the demonstrations' return (Agarwal et
     al. 2021); every algorithm takes the same number of runs per env (the smallest)."""
     algos = sorted({a for _, a in groups})
-    tasks = [e for e in sorted({e for e, _ in groups}) if e in demo_returns
-             and all((e, a) in groups for a in algos)]
+    tasks = [
+        e
+        for e in sorted({e for e, _ in groups})
+        if e in demo_returns and all((e, a) in groups for a in algos)
+    ]
     if not tasks or not algos:
         return None
     runs = min(len(groups[(e, a)].finals) for e in tasks for a in algos)
     if runs < 2:
         return None
-    scores = {a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks],
-                          axis=1) for a in algos}
+    scores = {
+        a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks], axis=1)
+        for a in algos
+    }
     taus = np.linspace(0.0, 1.2, 49)
     iqm, profiles = {}, {}
     for algo in algos:
@@ -136,17 +181,24 @@ def aggregate_metrics(groups: dict[tuple[str, str], Group], demo_returns: dict[s
         profiles[algo] = (prof.value, prof.low, prof.high)
     improvement = drl_eg_improvement(scores, algos, rng)
     png = aggregate_png(iqm, taus, profiles)
-    return {"tasks": tasks, "runs_per_task": runs, "iqm": iqm, "improvement": improvement,
-            "png_b64": base64.b64encode(png).decode()}
+    return {
+        "tasks": tasks,
+        "runs_per_task": runs,
+        "iqm": iqm,
+        "improvement": improvement,
+        "png_b64": base64.b64encode(png).decode(),
+    }
 
 
 REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstrations' return
 
 
-def efficiency_rows(groups: dict[tuple[str, str], Group],
-                    demo_returns: dict[str, float]) -> list[dict[str, Any]]:
+def efficiency_rows(
+    groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]
+) -> list[dict[str, Any]]:
     """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
     ``REACH_FRACTION`` of the demonstrations' return, each with a t-interval over seeds."""
+
     def estimate(values: np.ndarray) -> dict[str, Any]:
         values = values[np.isfinite(values)]
         if not len(values):
@@ -159,15 +211,22 @@ def efficiency_rows(groups: dict[tuple[str, str], Group],
         if env_id not in demo_returns:
             continue
         level = REACH_FRACTION * demo_returns[env_id]
-        rows.append({"env_id": env_id, "algo": algo, "n": len(group.seeds),
-                     "area": estimate(group.areas),
-                     "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
-                     "level": level})
+        rows.append(
+            {
+                "env_id": env_id,
+                "algo": algo,
+                "n": len(group.seeds),
+                "area": estimate(group.areas),
+                "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
+                "level": level,
+            }
+        )
     return rows
 
 
-def published_rows(groups: dict[tuple[str, str], Group],
-                   budgets: dict[str, int]) -> list[dict[str, Any]]:
+def published_rows(
+    groups: dict[tuple[str, str], Group], budgets: dict[str, int]
+) -> list[dict[str, Any]]:
     """Our SAC beside published SAC at every published budget within ours, and the
     evaluation at those steps of the run that trained the env's expert (the harness's
     twin-Q SAC, one seed), where it trained that far."""
@@ -190,11 +249,21 @@ def published_rows(groups: dict[tuple[str, str], Group],
             if expert_run is not None and point.steps in expert_run["steps"]:
                 expert = {k: expert_run[k] for k in ("algo", "seed", "best_of")}
                 expert["return"] = expert_run["returns"][expert_run["steps"].index(point.steps)]
-            rows.append({"env_id": env_id, "steps": point.steps, "mean": point.mean,
-                         "std": point.std, "label": point.label, "source": point.source,
-                         "family": point.family, "settings": point.about.settings,
-                         "statistic": point.about.statistic,
-                         "ours": ours, "expert_run": expert})
+            rows.append(
+                {
+                    "env_id": env_id,
+                    "steps": point.steps,
+                    "mean": point.mean,
+                    "std": point.std,
+                    "label": point.label,
+                    "source": point.source,
+                    "family": point.family,
+                    "settings": point.about.settings,
+                    "statistic": point.about.statistic,
+                    "ours": ours,
+                    "expert_run": expert,
+                }
+            )
     return rows
 
 
@@ -204,8 +273,10 @@ def summary_run_ids(summary: dict[str, Any]) -> list[str]:
         return [run for cell in summary["cells"] for run in cell["runs"]]
     if "runs" in summary:  # Fig. 3
         return [r["run_id"] for r in summary["runs"]]
-    return ([run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
-            + summary.get("sac_runs", []))  # an ablation's SAC reference
+    return (
+        [run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
+        + summary.get("sac_runs", [])
+    )  # an ablation's SAC reference
 
 
 def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
@@ -221,8 +292,9 @@ def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
     return [r for r in named if not (Path(store) / r / "curve.csv").is_file()]
 
 
-def write_unless_fewer(out_dir: Path, store: Path,
-                       build: Callable[[Path], Path | None]) -> tuple[Path | None, str | None]:
+def write_unless_fewer(
+    out_dir: Path, store: Path, build: Callable[[Path], Path | None]
+) -> tuple[Path | None, str | None]:
     """Write a report with ``build(out_dir)``, unless ``out_dir`` already holds one that names
     runs the store lacks (lost, superseded by runs of a new spec, or trained elsewhere): then
     it is built aside and replaces the old one (two renames: never half old, half new) only
@@ -237,12 +309,17 @@ def write_unless_fewer(out_dir: Path, store: Path,
     try:
         written = build(trial)
         before = len(summary_run_ids(json.loads((out_dir / "summary.json").read_text())))
-        after = (len(summary_run_ids(json.loads((trial / "summary.json").read_text())))
-                 if written is not None else 0)
+        after = (
+            len(summary_run_ids(json.loads((trial / "summary.json").read_text())))
+            if written is not None
+            else 0
+        )
         if after < before:
-            return None, (f"{out_dir}: left as it is; {len(missing)} of the {before} runs it "
-                          f"names are not in {store} (e.g. {missing[0]}), and the store gives "
-                          f"{after}")
+            return None, (
+                f"{out_dir}: left as it is; {len(missing)} of the {before} runs it "
+                f"names are not in {store} (e.g. {missing[0]}), and the store gives "
+                f"{after}"
+            )
         old = out_dir.with_name(f".{out_dir.name}.old")
         shutil.rmtree(old, ignore_errors=True)
         os.replace(out_dir, old)
@@ -250,13 +327,15 @@ def write_unless_fewer(out_dir: Path, store: Path,
         shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(trial, ignore_errors=True)
-    return out_dir / "index.html", (f"from {after} runs; {len(missing)} of the {before} it "
-                                    f"named are no longer in {store}")
+    return out_dir / "index.html", (
+        f"from {after} runs; {len(missing)} of the {before} it named are no longer in {store}"
+    )
 
 
 def summary_bytes(summary: dict[str, Any]) -> bytes:
     """A report's ``summary.json``: strict JSON (what jq and browsers parse), so a number
     that is not defined (no seed reached a threshold, a CI of one run) is written as null."""
+
     def strict(value: Any) -> Any:
         if isinstance(value, np.generic):
             value = value.item()
@@ -268,8 +347,7 @@ def summary_bytes(summary: dict[str, Any]) -> bytes:
             return [strict(v) for v in value]
         return value
 
-    return (json.dumps(strict(summary), indent=2, default=float, allow_nan=False)
-            + "\n").encode()
+    return (json.dumps(strict(summary), indent=2, default=float, allow_nan=False) + "\n").encode()
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -283,8 +361,11 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 def demo_returns(runs: list[Run]) -> dict[str, float]:
     """The demonstrations' mean return per env, from the runs that used them."""
-    return {run.spec["env_id"]: run.provenance["demos"]["expert_return_mean"]
-            for run in runs if run.provenance.get("demos")}
+    return {
+        run.spec["env_id"]: run.provenance["demos"]["expert_return_mean"]
+        for run in runs
+        if run.provenance.get("demos")
+    }
 
 
 def judging_profile(claim_envs: tuple[str, ...]) -> str | None:
@@ -292,8 +373,10 @@ def judging_profile(claim_envs: tuple[str, ...]) -> str | None:
     where a claim the current profile cannot judge is judged."""
     from replicate.profiles import PROFILES
 
-    return next((p.name for p in PROFILES.values()
-                 if p.meaningful and set(claim_envs) <= set(p.steps)), None)
+    return next(
+        (p.name for p in PROFILES.values() if p.meaningful and set(claim_envs) <= set(p.steps)),
+        None,
+    )
 
 
 def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict[str, Any]]:
@@ -304,9 +387,13 @@ def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict
     from replicate.profiles import report_dir
 
     fig3_runs_absent = not runs  # the Fig. 4 report asks for claim 5 alone
-    claims = judge_claims(claim_groups(runs), demo_returns(runs + fig4_runs), profile.meaningful,
-                          judged_envs=set(profile.steps), fig4_groups=claim_groups(fig4_runs)
-                          if fig4_runs else None)
+    claims = judge_claims(
+        claim_groups(runs),
+        demo_returns(runs + fig4_runs),
+        profile.meaningful,
+        judged_envs=set(profile.steps),
+        fig4_groups=claim_groups(fig4_runs) if fig4_runs else None,
+    )
     for claim in claims:
         claim["where"] = None
         if claim["verdict"].startswith("not judged at this profile"):
@@ -343,16 +430,20 @@ def sac_standing(published: list[dict[str, Any]]) -> list[str]:
     lines = []
     for env_id in sorted({p["env_id"] for p in published if p.get("ours")}):
         steps = max(p["steps"] for p in published if p["env_id"] == env_id and p.get("ours"))
-        ours = next(p["ours"]["mean"] for p in published
-                    if p["env_id"] == env_id and p["steps"] == steps and p.get("ours"))
+        ours = next(
+            p["ours"]["mean"]
+            for p in published
+            if p["env_id"] == env_id and p["steps"] == steps and p.get("ours")
+        )
         line = compare_with_published(env_id, steps, ours)
         if line:
             lines.append(line)
     return lines
 
 
-def threats_to_validity(runs: list[Run], published: list[dict[str, Any]],
-                        paper_seeds: int = PAPER_SEEDS_FIG3) -> list[str]:
+def threats_to_validity(
+    runs: list[Run], published: list[dict[str, Any]], paper_seeds: int = PAPER_SEEDS_FIG3
+) -> list[str]:
     """What a reviewer must weigh before reading a MuJoCo verdict, from the runs: budget and
     seeds against the paper's, how much DRL-EG's guider acted, how far the demonstrations
     fall short of the experts' targets, and our SAC against published SAC at the same steps.
@@ -365,43 +456,60 @@ def threats_to_validity(runs: list[Run], published: list[dict[str, Any]],
     steps = sorted({int(r.spec["total_steps"]) for r in mujoco})
     counts = sorted({len(m) for (e, _), m in group_runs(mujoco).items()})
     seeds = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
-    threats = [f"Budget and seeds: {' and '.join(f'{s:,}' for s in steps)} env steps per MuJoCo "
-               f"run, where the paper's text states no budget (the harness assumes 1M); "
-               f"{seeds} seeds per cell, where the paper shows {paper_seeds}."]
+    threats = [
+        f"Budget and seeds: {' and '.join(f'{s:,}' for s in steps)} env steps per MuJoCo "
+        f"run, where the paper's text states no budget (the harness assumes 1M); "
+        f"{seeds} seeds per cell, where the paper shows {paper_seeds}."
+    ]
     shares = defaultdict(list)
     for run in mujoco:
         if run.spec["algo"] == "drl-eg":
             shares[run.spec["env_id"]].append(run.guided_share)
     if shares:
+
         def share(x: float) -> str:
             return f"{x:.1%}" if x >= 0.001 or x == 0 else "<0.1%"
 
-        per_env = "; ".join(f"{env_id} " + "-".join(dict.fromkeys((share(min(v)), share(max(v)))))
-                            for env_id, v in sorted(shares.items()))
-        threats.append("Guidance under the chosen T2: DRL-EG's guider took this share of the "
-                       f"training steps ({per_env}); where it rarely acts, DRL-EG is close to "
-                       "SAC by construction.")
+        per_env = "; ".join(
+            f"{env_id} " + "-".join(dict.fromkeys((share(min(v)), share(max(v)))))
+            for env_id, v in sorted(shares.items())
+        )
+        threats.append(
+            "Guidance under the chosen T2: DRL-EG's guider took this share of the "
+            f"training steps ({per_env}); where it rarely acts, DRL-EG is close to "
+            "SAC by construction."
+        )
     short = []
     for env_id, value in sorted(demo_returns(mujoco).items()):
         target = EXPERT_TARGETS.get(env_id)
         if target and value < target:
-            short.append(f"{env_id} {value:.0f} against {target:.0f} "
-                         f"({1 - value / target:.0%} short)")
+            short.append(
+                f"{env_id} {value:.0f} against {target:.0f} ({1 - value / target:.0%} short)"
+            )
     if short:
-        threats.append("Demonstrations below the experts' targets (what published twin-Q SAC "
-                       "reaches at 1M steps): " + "; ".join(short) + ". Claim 3's 'near the "
-                       "demonstrations' is judged against these returns.")
+        threats.append(
+            "Demonstrations below the experts' targets (what published twin-Q SAC "
+            "reaches at 1M steps): " + "; ".join(short) + ". Claim 3's 'near the "
+            "demonstrations' is judged against these returns."
+        )
     standing = sac_standing(published)
     if standing:
-        threats.append("Our SAC against published SAC at the same steps: " + "; ".join(standing)
-                       + ". Published runs used -v1 to -v3 envs and their own settings "
-                       "(Our SAC against published SAC lists them).")
+        threats.append(
+            "Our SAC against published SAC at the same steps: "
+            + "; ".join(standing)
+            + ". Published runs used -v1 to -v3 envs and their own settings "
+            "(Our SAC against published SAC lists them)."
+        )
     return threats
 
 
-def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
-                         guidance: list[dict[str, Any]] | None = None,
-                         fig4_runs: list[Run] | None = None) -> Path:
+def write_figure3_report(
+    outcome: GridOutcome,
+    profile: Profile,
+    out_dir: Path,
+    guidance: list[dict[str, Any]] | None = None,
+    fig4_runs: list[Run] | None = None,
+) -> Path:
     """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
     ``guidance`` (``experiments.guidance_settings``) is printed beside the claims;
     ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5."""
@@ -419,35 +527,66 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     efficiency = efficiency_rows(groups, demo_lines)
     published = published_rows(groups, profile.steps)
     title = f"Fig. 3 replication, profile '{profile.name}'"
-    points = {env_id: [(p.steps, p.mean, p.std, p.family) for p in published_points(env_id, steps)
-                       if p.source in ("tianshou", "spinningup", "coach")]
-              for env_id, steps in profile.steps.items() if env_id in {b.env_id for b in bands}}
-    figure = (base64.b64encode(learning_curves_png(bands, demo_lines, title, points,
-                                                   list(profile.steps))).decode()
-              if bands else None)
+    points = {
+        env_id: [
+            (p.steps, p.mean, p.std, p.family)
+            for p in published_points(env_id, steps)
+            if p.source in ("tianshou", "spinningup", "coach")
+        ]
+        for env_id, steps in profile.steps.items()
+        if env_id in {b.env_id for b in bands}
+    }
+    figure = (
+        base64.b64encode(
+            learning_curves_png(bands, demo_lines, title, points, list(profile.steps))
+        ).decode()
+        if bands
+        else None
+    )
     revisions = sorted({r.provenance["git_revision"] for r in runs})
     first = runs[0].provenance if runs else {}
-    budgets = [{"env_id": env_id, "steps": profile.steps[env_id],
-                "eval_interval": profile.eval_interval[env_id],
-                "eval_episodes": profile.eval_episodes,
-                "seeds": {algo: sorted(r.spec["seed"] for r in members)
-                          for (env, algo), members in sorted(group_runs(runs).items())
-                          if env == env_id},
-                "paper": PAPER_BUDGETS.get(env_id, "-")} for env_id in profile.steps]
+    budgets = [
+        {
+            "env_id": env_id,
+            "steps": profile.steps[env_id],
+            "eval_interval": profile.eval_interval[env_id],
+            "eval_episodes": profile.eval_episodes,
+            "seeds": {
+                algo: sorted(r.spec["seed"] for r in members)
+                for (env, algo), members in sorted(group_runs(runs).items())
+                if env == env_id
+            },
+            "paper": PAPER_BUDGETS.get(env_id, "-"),
+        }
+        for env_id in profile.steps
+    ]
     context = {
-        "title": title, "profile": profile, "paper_seeds": PAPER_SEEDS_FIG3,
+        "title": title,
+        "profile": profile,
+        "paper_seeds": PAPER_SEEDS_FIG3,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "figure_png_b64": figure, "finals": finals, "claims": claims, "aggregate": aggregate, "budgets": budgets,
+        "figure_png_b64": figure,
+        "finals": finals,
+        "claims": claims,
+        "aggregate": aggregate,
+        "budgets": budgets,
         "runs": sorted(runs, key=lambda r: (r.spec["env_id"], r.spec["algo"], r.spec["seed"])),
-        "failed": outcome.failed, "skipped": outcome.skipped, "demos": list(demos.values()),
+        "failed": outcome.failed,
+        "skipped": outcome.skipped,
+        "demos": list(demos.values()),
         "versions": first.get("versions", provenance.package_versions()),
         "machine": first.get("machine", provenance.machine()),
         "revisions": revisions or [provenance.git_revision()],
         "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
-        "grid_wall_s": outcome.wall_time_s, "confidence": CONFIDENCE,
-        "efficiency": efficiency, "published": published, "reach_fraction": REACH_FRACTION,
-        "guidance": guidance or [], "seed_counts": seed_counts(runs),
-        "threats": threats_to_validity(runs, published), "sac_standing": sac_standing(published),
+        "grid_wall_s": outcome.wall_time_s,
+        "confidence": CONFIDENCE,
+        "efficiency": efficiency,
+        "published": published,
+        "reach_fraction": REACH_FRACTION,
+        "guidance": guidance or [],
+        "seed_counts": seed_counts(runs),
+        "threats": threats_to_validity(runs, published),
+        "sac_standing": sac_standing(published),
         "family_titles": FAMILY_TITLES,
     }
     env = report_environment()
@@ -455,28 +594,52 @@ def write_figure3_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
     summary = {
-        "profile": profile.name, "generated": context["generated"], "claims": claims,
-        "final_returns": [{"env_id": f.env_id, "algo": f.algo, "seeds": f.seeds,
-                           "finals": f.finals.tolist(), "mean": f.mean, "ci95": [f.low, f.high]}
-                          for f in finals],
-        "runs": [{"run_id": r.path.name, "spec_hash": r.provenance["spec_hash"],
-                  "final_return": r.final_return} for r in context["runs"]],
+        "profile": profile.name,
+        "generated": context["generated"],
+        "claims": claims,
+        "final_returns": [
+            {
+                "env_id": f.env_id,
+                "algo": f.algo,
+                "seeds": f.seeds,
+                "finals": f.finals.tolist(),
+                "mean": f.mean,
+                "ci95": [f.low, f.high],
+            }
+            for f in finals
+        ],
+        "runs": [
+            {
+                "run_id": r.path.name,
+                "spec_hash": r.provenance["spec_hash"],
+                "final_return": r.final_return,
+            }
+            for r in context["runs"]
+        ],
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
-        "aggregate": None if aggregate is None else {
-            k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
-        "efficiency": efficiency, "published_sac": published, "guidance": guidance or [],
-        "git_revisions": context["revisions"], "seed_counts": context["seed_counts"],
+        "aggregate": None
+        if aggregate is None
+        else {k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
+        "efficiency": efficiency,
+        "published_sac": published,
+        "guidance": guidance or [],
+        "git_revisions": context["revisions"],
+        "seed_counts": context["seed_counts"],
         "budgets": {b["env_id"]: b["steps"] for b in budgets},
         "threats": context["threats"],
     }
-    _atomic_write(out_dir / "summary.json",
-                  summary_bytes(summary))
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
 
 
-def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
-                         out_dir: Path, guidance: list[dict[str, Any]] | None = None) -> Path:
+def write_figure4_report(
+    outcome: GridOutcome,
+    profile: Profile,
+    env_id: str,
+    out_dir: Path,
+    guidance: list[dict[str, Any]] | None = None,
+) -> Path:
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
     from replicate.claims import ANT, PAPER_FIG4_SEEDS
@@ -489,49 +652,84 @@ def write_figure4_report(outcome: GridOutcome, profile: Profile, env_id: str,
     rows = []
     for seed, runs in pairs.items():
         sac, drl = runs["sac"], runs["drl-eg"]
-        rows.append({"seed": seed, "sac": sac.final_return, "drl": drl.final_return,
-                     "difference": drl.final_return - sac.final_return,
-                     "guided_share": drl.guided_share,
-                     # same seed, same initial weights: the step-0 evaluations must agree
-                     "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
-                     "runs": [sac.path.name, drl.path.name]})
+        rows.append(
+            {
+                "seed": seed,
+                "sac": sac.final_return,
+                "drl": drl.final_return,
+                "difference": drl.final_return - sac.final_return,
+                "guided_share": drl.guided_share,
+                # same seed, same initial weights: the step-0 evaluations must agree
+                "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
+                "runs": [sac.path.name, drl.path.name],
+            }
+        )
     claim = None
     if env_id == ANT and pairs:  # the same verdict as the Fig. 3 report's ledger
         claim = ledger([], outcome.runs, profile)[4]
     paired = claim.get("paired") if claim else None
     if paired is None and rows:  # another env, or a profile that does not judge claim 5
         paired = paired_mean_difference(
-            np.array([r["drl"] for r in rows]), np.array([r["sac"] for r in rows]),
-            f"{env_id}: DRL-EG minus SAC, final return").as_dict()
-    panels = [(seed, {algo: (run.curve["step"].to_numpy(), run.curve["return_mean"].to_numpy(),
-                             run.curve["train_return"].to_numpy(float))
-                      for algo, run in runs.items()}) for seed, runs in pairs.items()]
+            np.array([r["drl"] for r in rows]),
+            np.array([r["sac"] for r in rows]),
+            f"{env_id}: DRL-EG minus SAC, final return",
+        ).as_dict()
+    panels = [
+        (
+            seed,
+            {
+                algo: (
+                    run.curve["step"].to_numpy(),
+                    run.curve["return_mean"].to_numpy(),
+                    run.curve["train_return"].to_numpy(float),
+                )
+                for algo, run in runs.items()
+            },
+        )
+        for seed, runs in pairs.items()
+    ]
     title = f"Fig. 4 replication on {env_id}, profile '{profile.name}'"
     context = {
-        "title": title, "profile": profile, "env_id": env_id, "rows": rows, "paired": paired,
-        "claim": claim, "confidence": CONFIDENCE, "failed": outcome.failed,
+        "title": title,
+        "profile": profile,
+        "env_id": env_id,
+        "rows": rows,
+        "paired": paired,
+        "claim": claim,
+        "confidence": CONFIDENCE,
+        "failed": outcome.failed,
         "missing": outcome.skipped,
         "figure_png_b64": base64.b64encode(paired_curves_png(panels, title)).decode()
-        if panels else None,
+        if panels
+        else None,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "steps": int(outcome.runs[0].spec["total_steps"]) if outcome.runs else 0,
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
         "guidance": guidance or [],
-        "threats": threats_to_validity(outcome.runs, published_rows(
-            claim_groups(outcome.runs), {env_id: int(outcome.runs[0].spec["total_steps"])}
-            if outcome.runs else {}), paper_seeds=PAPER_FIG4_SEEDS),
+        "threats": threats_to_validity(
+            outcome.runs,
+            published_rows(
+                claim_groups(outcome.runs),
+                {env_id: int(outcome.runs[0].spec["total_steps"])} if outcome.runs else {},
+            ),
+            paper_seeds=PAPER_FIG4_SEEDS,
+        ),
     }
     env = report_environment()
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
-    summary = {"profile": profile.name, "env_id": env_id, "claim": claim, "paired": paired,
-               "generated": context["generated"], "steps": context["steps"],
-               "threats": context["threats"],
-               "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
-               "guidance": guidance or [],
-               "missing": [{"env_id": e, "algo": a, "reason": why}
-                           for e, a, why in outcome.skipped],
-               "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed]}
-    _atomic_write(out_dir / "summary.json",
-                  summary_bytes(summary))
+    summary = {
+        "profile": profile.name,
+        "env_id": env_id,
+        "claim": claim,
+        "paired": paired,
+        "generated": context["generated"],
+        "steps": context["steps"],
+        "threats": context["threats"],
+        "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
+        "guidance": guidance or [],
+        "missing": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
+        "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
+    }
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"

@@ -22,17 +22,35 @@ from typing import Any
 
 import numpy as np
 
+from replicate.claims import (
+    EQUIVALENT,
+    FAILS,
+    HOLDS,
+    SMALLEST_EFFECT,
+    Check,
+    decide,
+    what_would_decide,
+)
 from replicate.errors import HarnessError
-from replicate.experiments import (algorithm_overrides, drl_eg_env_defaults,
-                                   guidance_settings, stored_outcome, train_and_report)
+from replicate.experiments import (
+    algorithm_overrides,
+    drl_eg_env_defaults,
+    guidance_settings,
+    stored_outcome,
+    train_and_report,
+)
 from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
-from replicate.claims import (EQUIVALENT, FAILS, HOLDS, SMALLEST_EFFECT, Check, decide,
-                              what_would_decide)
-from replicate.stats import (CONFIDENCE, interquartile_mean, score_profile,
-                             seed_matched_difference, stratified_bootstrap_ci, substream)
+from replicate.stats import (
+    CONFIDENCE,
+    interquartile_mean,
+    score_profile,
+    seed_matched_difference,
+    stratified_bootstrap_ci,
+    substream,
+)
 from replicate.templating import report_environment
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
@@ -49,12 +67,20 @@ SPARSE_TASKS = (CARTPOLE_SPARSE, BALL_IN_CUP)
 RLFD_BUDGETS: dict[str, dict[str, tuple[int, int]]] = {
     "smoke": {MOUNTAINCAR: (1200, 400)},
     "quick": {MOUNTAINCAR: (20_000, 1000)},
-    "reduced": {MOUNTAINCAR: (20_000, 1000), CARTPOLE_SPARSE: (50_000, 5000),
-                BALL_IN_CUP: (50_000, 5000), "Hopper-v5": (200_000, 5000),
-                "Ant-v5": (200_000, 5000)},
-    "paper": {MOUNTAINCAR: (100_000, 2000), CARTPOLE_SPARSE: (200_000, 10_000),
-              BALL_IN_CUP: (200_000, 10_000), "Hopper-v5": (1_000_000, 10_000),
-              "Ant-v5": (1_000_000, 10_000)},
+    "reduced": {
+        MOUNTAINCAR: (20_000, 1000),
+        CARTPOLE_SPARSE: (50_000, 5000),
+        BALL_IN_CUP: (50_000, 5000),
+        "Hopper-v5": (200_000, 5000),
+        "Ant-v5": (200_000, 5000),
+    },
+    "paper": {
+        MOUNTAINCAR: (100_000, 2000),
+        CARTPOLE_SPARSE: (200_000, 10_000),
+        BALL_IN_CUP: (200_000, 10_000),
+        "Hopper-v5": (1_000_000, 10_000),
+        "Ant-v5": (1_000_000, 10_000),
+    },
 }
 RLFD_SEEDS = 5
 RANDOM_EPISODES = 10
@@ -62,8 +88,9 @@ REPORT_SEED = 20_261_126
 CURVE_FRACTIONS = np.linspace(0.0, 1.0, 11)  # sample-efficiency curve: shares of the budget
 
 
-def rlfd_grid(profile: Profile, seeds: int | None = None, algorithms: tuple[str, ...] | None = None
-              ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+def rlfd_grid(
+    profile: Profile, seeds: int | None = None, algorithms: tuple[str, ...] | None = None
+) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
     """Every method x task x seed of the profile, and the (task, method, reason) cells left
     out: a method not registered, or a task without demonstrations."""
     from baselines.registry import UnknownAlgorithmError, get_algorithm
@@ -88,8 +115,10 @@ def rlfd_grid(profile: Profile, seeds: int | None = None, algorithms: tuple[str,
                 hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
             if algo == "rlpd" and env_id in SPARSE_TASKS:
                 hyper["backup_entropy"] = False
-            specs += [RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes,
-                              hyper) for seed in range(n_seeds)]
+            specs += [
+                RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
+                for seed in range(n_seeds)
+            ]
     return specs, skipped
 
 
@@ -117,8 +146,10 @@ def normalised(returns: np.ndarray, random: float, demo: float) -> np.ndarray:
     """(R - R_random) / (R_demo - R_random): 0 is random play, 1 the demonstrations."""
     span = demo - random
     if span <= 0:
-        raise HarnessError(f"the demonstrations' return {demo:.3g} is not above random play's "
-                           f"{random:.3g}", "retrain the expert and regenerate demonstrations")
+        raise HarnessError(
+            f"the demonstrations' return {demo:.3g} is not above random play's {random:.3g}",
+            "retrain the expert and regenerate demonstrations",
+        )
     return (np.asarray(returns, float) - random) / span
 
 
@@ -138,9 +169,16 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
     algos = [a for a in RLFD_ALGORITHMS if any(x == a for _, x in by_cell)]
     reference = {}
     for task in tasks:
-        demo = next((r.provenance["demos"]["expert_return_mean"]
-                     for (e, _), members in by_cell.items() if e == task
-                     for r in members if r.provenance.get("demos")), None)
+        demo = next(
+            (
+                r.provenance["demos"]["expert_return_mean"]
+                for (e, _), members in by_cell.items()
+                if e == task
+                for r in members
+                if r.provenance.get("demos")
+            ),
+            None,
+        )
         if demo is None:  # only methods without demonstrations (SAC) have runs here yet
             from replicate.demos import default_demo_path, load_demos
 
@@ -149,18 +187,27 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
 
     def scores(task: str, algo: str) -> np.ndarray:
         ref = reference[task]
-        finals = [r.final_return for r in sorted(by_cell[(task, algo)],
-                                                 key=lambda r: r.spec["seed"])]
+        finals = [
+            r.final_return for r in sorted(by_cell[(task, algo)], key=lambda r: r.spec["seed"])
+        ]
         return normalised(np.array(finals), ref["random"], ref["demo"])
 
     def by_seed(task: str, algo: str) -> dict[int, float]:
         seeds = sorted(r.spec["seed"] for r in by_cell[(task, algo)])
         return dict(zip(seeds, scores(task, algo).tolist()))
 
-    cells = [{"env_id": t, "algo": a, "n": len(by_cell[(t, a)]),
-              "final_normalised": float(np.mean(scores(t, a))),
-              "runs": sorted(r.path.name for r in by_cell[(t, a)])}
-             for t in tasks for a in algos if (t, a) in by_cell]
+    cells = [
+        {
+            "env_id": t,
+            "algo": a,
+            "n": len(by_cell[(t, a)]),
+            "final_normalised": float(np.mean(scores(t, a))),
+            "runs": sorted(r.path.name for r in by_cell[(t, a)]),
+        }
+        for t in tasks
+        for a in algos
+        if (t, a) in by_cell
+    ]
 
     # One family of checks, Holm-adjusted: "DRL-EG minus X above 0" per task and method,
     # paired where the two ran the same seeds; within +-SMALLEST_EFFECT: equivalent.
@@ -172,18 +219,32 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
             if algo == "drl-eg" or (task, algo) not in by_cell:
                 continue
             diff = seed_matched_difference(
-                by_seed(task, "drl-eg"), by_seed(task, algo),
-                f"{task}: DRL-EG minus {algo}, final normalised score")
-            checks.append(Check(f"{task}: DRL-EG minus {algo}", diff, above=0.0,
-                                smallest_effect=SMALLEST_EFFECT))
+                by_seed(task, "drl-eg"),
+                by_seed(task, algo),
+                f"{task}: DRL-EG minus {algo}, final normalised score",
+            )
+            checks.append(
+                Check(
+                    f"{task}: DRL-EG minus {algo}", diff, above=0.0, smallest_effect=SMALLEST_EFFECT
+                )
+            )
     decide(checks)
     words = {HOLDS: "DRL-EG better", FAILS: "DRL-EG worse", EQUIVALENT: "equivalent"}
-    verdicts = [{"env_id": c.estimate.quantity.split(":")[0],
-                 "other": c.what.rsplit(" minus ", 1)[1], "effect": c.estimate.value,
-                 "low": c.estimate.low, "high": c.estimate.high, "method": c.estimate.label,
-                 "quantity": c.estimate.as_dict(), "p_adjusted": c.adjusted,
-                 "verdict": words.get(c.state, c.state),
-                 "decide": (what_would_decide(c, len(checks)) or (None,))[0]} for c in checks]
+    verdicts = [
+        {
+            "env_id": c.estimate.quantity.split(":")[0],
+            "other": c.what.rsplit(" minus ", 1)[1],
+            "effect": c.estimate.value,
+            "low": c.estimate.low,
+            "high": c.estimate.high,
+            "method": c.estimate.label,
+            "quantity": c.estimate.as_dict(),
+            "p_adjusted": c.adjusted,
+            "verdict": words.get(c.state, c.state),
+            "decide": (what_would_decide(c, len(checks)) or (None,))[0],
+        }
+        for c in checks
+    ]
 
     # Aggregates over the tasks where every method has runs, on as many seeds as all have.
     full = [t for t in tasks if all((t, a) in by_cell for a in algos)]
@@ -198,56 +259,101 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
             for algo in algos:
                 est = stratified_bootstrap_ci(interquartile_mean, (matrix[algo],), rng)
                 iqm[algo] = [float(est.value), float(est.low), float(est.high)]
-                prof = stratified_bootstrap_ci(lambda s: score_profile(s, taus),
-                                               (matrix[algo],), rng)
+                prof = stratified_bootstrap_ci(
+                    lambda s: score_profile(s, taus), (matrix[algo],), rng
+                )
                 profiles[algo] = (prof.value, prof.low, prof.high)
-                curves = np.stack([np.stack([
-                    normalised(_at_fractions(r, budgets[t][0]), reference[t]["random"],
-                               reference[t]["demo"])
-                    for r in sorted(by_cell[(t, algo)], key=lambda r: r.spec["seed"])[:n]])
-                    for t in full], axis=1)  # (runs, tasks, fractions)
-                points = [stratified_bootstrap_ci(interquartile_mean, (curves[:, :, k],), rng)
-                          for k in range(len(CURVE_FRACTIONS))]
-                efficiency[algo] = tuple(np.array([float(getattr(p, part)) for p in points])
-                                         for part in ("value", "low", "high"))
+                curves = np.stack(
+                    [
+                        np.stack(
+                            [
+                                normalised(
+                                    _at_fractions(r, budgets[t][0]),
+                                    reference[t]["random"],
+                                    reference[t]["demo"],
+                                )
+                                for r in sorted(by_cell[(t, algo)], key=lambda r: r.spec["seed"])[
+                                    :n
+                                ]
+                            ]
+                        )
+                        for t in full
+                    ],
+                    axis=1,
+                )  # (runs, tasks, fractions)
+                points = [
+                    stratified_bootstrap_ci(interquartile_mean, (curves[:, :, k],), rng)
+                    for k in range(len(CURVE_FRACTIONS))
+                ]
+                efficiency[algo] = tuple(
+                    np.array([float(getattr(p, part)) for p in points])
+                    for part in ("value", "low", "high")
+                )
             improvement = drl_eg_improvement(matrix, algos, rng)
-            aggregate = {"tasks": full, "runs_per_task": n, "iqm": iqm,
-                         "improvement": improvement, "taus": taus, "profiles": profiles,
-                         "efficiency": efficiency}
-    return {"tasks": tasks, "algos": algos, "reference": reference, "cells": cells,
-            "verdicts": verdicts, "aggregate": aggregate}
+            aggregate = {
+                "tasks": full,
+                "runs_per_task": n,
+                "iqm": iqm,
+                "improvement": improvement,
+                "taus": taus,
+                "profiles": profiles,
+                "efficiency": efficiency,
+            }
+    return {
+        "tasks": tasks,
+        "algos": algos,
+        "reference": reference,
+        "cells": cells,
+        "verdicts": verdicts,
+        "aggregate": aggregate,
+    }
 
 
 def _figure(aggregate: dict[str, Any]) -> bytes:
     """IQM with CIs, performance profiles, and the IQM against the share of the budget, two
     panels a row, with one legend in the free cell."""
-    from replicate.figures import (algo_color, algo_handle, algo_order, draw_iqm,
-                                   draw_profiles, panel_grid, png_bytes, set_theme,
-                                   shared_legend)
+    from replicate.figures import (
+        algo_color,
+        algo_handle,
+        algo_order,
+        draw_iqm,
+        draw_profiles,
+        panel_grid,
+        png_bytes,
+        set_theme,
+        shared_legend,
+    )
 
     set_theme()
     algos = algo_order(list(aggregate["iqm"]))
     fig, (left, middle, right), slot = panel_grid(3, 2, 3.8)
-    draw_iqm(left, {a: tuple(aggregate["iqm"][a]) for a in algos},
-             "IQM of final normalised score")
-    draw_profiles(middle, aggregate["taus"],
-                  {a: aggregate["profiles"][a] for a in algos if a in aggregate["profiles"]},
-                  "normalised score tau")
+    draw_iqm(left, {a: tuple(aggregate["iqm"][a]) for a in algos}, "IQM of final normalised score")
+    draw_profiles(
+        middle,
+        aggregate["taus"],
+        {a: aggregate["profiles"][a] for a in algos if a in aggregate["profiles"]},
+        "normalised score tau",
+    )
     for algo in algos:
         if algo not in aggregate["efficiency"]:
             continue
         value, low, high = aggregate["efficiency"][algo]
         right.plot(CURVE_FRACTIONS, value, color=algo_color(algo), linewidth=2)
-        right.fill_between(CURVE_FRACTIONS, low, high, color=algo_color(algo), alpha=0.15,
-                           linewidth=0)
+        right.fill_between(
+            CURVE_FRACTIONS, low, high, color=algo_color(algo), alpha=0.15, linewidth=0
+        )
     right.set_xlabel("share of each task's env-step budget")
     right.set_ylabel("IQM normalised score")
     shared_legend(fig, [algo_handle(a) for a in algos], algos, slot)
     return png_bytes(fig)
 
 
-def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
-                      guidance: list[dict[str, Any]] | None = None) -> Path:
+def write_rlfd_report(
+    outcome: GridOutcome,
+    profile: Profile,
+    out_dir: Path,
+    guidance: list[dict[str, Any]] | None = None,
+) -> Path:
     """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
     ``guidance`` (``experiments.guidance_settings``) is printed beside the verdicts."""
     from replicate import provenance
@@ -258,11 +364,17 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     aggregate = result["aggregate"]
     context = {
         "title": f"DRL-EG against IBRL, RLPD and JSRL, profile '{profile.name}'",
-        "profile": profile, "budgets": budgets, "result": result, "confidence": CONFIDENCE, "smallest_effect": SMALLEST_EFFECT,
+        "profile": profile,
+        "budgets": budgets,
+        "result": result,
+        "confidence": CONFIDENCE,
+        "smallest_effect": SMALLEST_EFFECT,
         "figure_png_b64": base64.b64encode(_figure(aggregate)).decode() if aggregate else None,
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "failed": outcome.failed, "skipped": outcome.skipped,
-        "random_episodes": RANDOM_EPISODES, "guidance": guidance or [],
+        "failed": outcome.failed,
+        "skipped": outcome.skipped,
+        "random_episodes": RANDOM_EPISODES,
+        "guidance": guidance or [],
         "other_profiles": _other_profiles(profile.name, out_dir),
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
@@ -272,12 +384,16 @@ def write_rlfd_report(outcome: GridOutcome, profile: Profile, out_dir: Path,
     out_dir = Path(out_dir)
     _atomic_write(out_dir / "index.html", html.encode())
     summary = {
-        "profile": profile.name, "generated": context["generated"],
+        "profile": profile.name,
+        "generated": context["generated"],
         "budgets": {t: list(b) for t, b in budgets.items()},
-        "reference": result["reference"], "cells": result["cells"],
-        "verdicts": result["verdicts"], "guidance": guidance or [],
-        "aggregate": None if aggregate is None else {
-            k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
+        "reference": result["reference"],
+        "cells": result["cells"],
+        "verdicts": result["verdicts"],
+        "guidance": guidance or [],
+        "aggregate": None
+        if aggregate is None
+        else {k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "git_revisions": context["revisions"],
@@ -292,7 +408,7 @@ def _other_profiles(profile: str, out_dir: Path) -> list[dict[str, Any]]:
     the profile's reports go by default (``reports/`` or ``reports/<profile>/``, a rebuild's
     folder beside it too), else None: elsewhere the other reports are not beside it."""
     here = report_dir(profile, "rlfd").parent.parts
-    default_layout = Path(out_dir).resolve().parent.parts[-len(here):] == here
+    default_layout = Path(out_dir).resolve().parent.parts[-len(here) :] == here
     others = []
     for name in RLFD_BUDGETS:
         if name in ("smoke", profile):
@@ -300,28 +416,53 @@ def _other_profiles(profile: str, out_dir: Path) -> list[dict[str, Any]]:
         there = report_dir(name, "rlfd") / "index.html"
         href = Path(os.path.relpath(there, report_dir(profile, "rlfd"))).as_posix()
         built = default_layout and (Path(out_dir) / href).resolve().is_file()
-        others.append({"name": name, "tasks": list(RLFD_BUDGETS[name]),
-                       "path": there.as_posix(), "href": href if built else None})
+        others.append(
+            {
+                "name": name,
+                "tasks": list(RLFD_BUDGETS[name]),
+                "path": there.as_posix(),
+                "href": href if built else None,
+            }
+        )
     return others
 
 
-def run_rlfd(profile: str = "quick", seeds: int | None = None, store: Path = Path("runs"),
-             out_dir: Path | None = None, workers: int | None = None,
-             checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-             batch: int | None = None, algos: list[str] | None = None,
-             envs: list[str] | None = None, dry_run: bool = False) -> Path | None:
+def run_rlfd(
+    profile: str = "quick",
+    seeds: int | None = None,
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+    workers: int | None = None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    device: str = "auto",
+    batch: int | None = None,
+    algos: list[str] | None = None,
+    envs: list[str] | None = None,
+    dry_run: bool = False,
+) -> Path | None:
     """Train what the comparison lacks (only the cells of ``algos`` x ``envs`` when given),
     then write its report from every run of its grid in the store; return the report's
     path. ``dry_run``: print what would train, train and write nothing, return None."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
     return train_and_report(
-        specs, skipped, profile, rlfd_command(profile), store,
+        specs,
+        skipped,
+        profile,
+        rlfd_command(profile),
+        store,
         Path(out_dir or report_dir(profile, "rlfd")),
         lambda outcome, out: write_rlfd_report(
-            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs)),
-        algos, envs, dry_run,
-        workers=workers, checkpoint_interval=checkpoint_interval, device=device, batch=batch)
+            outcome, chosen, out, guidance_settings(profile, outcome.runs, specs)
+        ),
+        algos,
+        envs,
+        dry_run,
+        workers=workers,
+        checkpoint_interval=checkpoint_interval,
+        device=device,
+        batch=batch,
+    )
 
 
 def rlfd_command(profile: str) -> str:
@@ -329,8 +470,9 @@ def rlfd_command(profile: str) -> str:
     return f"nox -s compare-rlfd -- --profile {profile}"
 
 
-def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
-                 seeds: int | None = None) -> Path | None:
+def rebuild_rlfd(
+    profile: str, store: Path, out_dir: Path | None = None, seeds: int | None = None
+) -> Path | None:
     """The report from the store alone; None (nothing written) when it holds none of the
     grid's runs, so that a committed report stays."""
     chosen = get_profile(profile)
@@ -338,5 +480,9 @@ def rebuild_rlfd(profile: str, store: Path, out_dir: Path | None = None,
     outcome = stored_outcome(specs, skipped, profile, store, rlfd_command(profile))
     if outcome is None:
         return None
-    return write_rlfd_report(outcome, chosen, Path(out_dir or report_dir(profile, "rlfd")),
-                             guidance_settings(profile, outcome.runs, specs))
+    return write_rlfd_report(
+        outcome,
+        chosen,
+        Path(out_dir or report_dir(profile, "rlfd")),
+        guidance_settings(profile, outcome.runs, specs),
+    )

@@ -42,16 +42,24 @@ from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import get_algorithm
 from replicate import carry, provenance
-from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.errors import HarnessError
+from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.spec import RunSpec, spec_hash
 
 provenance.code_revision()  # fix the code's revision when the code is loaded
 
-CURVE_COLUMNS = ["step", "return_mean", "return_std", "returns", "guided_fraction", "gate_open",
-                 "train_return", "wall_s"]
+CURVE_COLUMNS = [
+    "step",
+    "return_mean",
+    "return_std",
+    "returns",
+    "guided_fraction",
+    "gate_open",
+    "train_return",
+    "wall_s",
+]
 
 
 @dataclass
@@ -103,20 +111,32 @@ def prepare(spec: RunSpec) -> PreparedRun:
     try:
         config = algorithm.make_config(spec.hyperparameters)
     except (KeyError, TypeError, ValueError) as exc:
-        raise HarnessError(f"bad hyperparameters for {spec.algo}: {exc}".replace("\n", " "),
-                           "check the --set KEY=VALUE options against `--algo` defaults") from None
+        raise HarnessError(
+            f"bad hyperparameters for {spec.algo}: {exc}".replace("\n", " "),
+            "check the --set KEY=VALUE options against `--algo` defaults",
+        ) from None
     demos = None
     demo_info = None
     if algorithm.needs_demos:
         path = Path(spec.demos) if spec.demos else default_demo_path(spec.env_id)
         demos = load_demos(path, spec.env_id)
-        demo_info = {"sha256": demos.sha256, "n_pairs": len(demos.observations),
-                     "expert_return_mean": demos.mean_return, "path": portable_path(path)}
-    hyperparameters = {k: v for k, v in dataclasses.asdict(config).items()
-                       if ADDRESS_NEUTRAL_DEFAULTS.get(k, object()) != v}
+        demo_info = {
+            "sha256": demos.sha256,
+            "n_pairs": len(demos.observations),
+            "expert_return_mean": demos.mean_return,
+            "path": portable_path(path),
+        }
+    hyperparameters = {
+        k: v
+        for k, v in dataclasses.asdict(config).items()
+        if ADDRESS_NEUTRAL_DEFAULTS.get(k, object()) != v
+    }
     resolved = {
-        "algo": spec.algo, "env_id": spec.env_id, "seed": spec.seed,
-        "total_steps": spec.total_steps, "eval_interval": spec.eval_interval,
+        "algo": spec.algo,
+        "env_id": spec.env_id,
+        "seed": spec.seed,
+        "total_steps": spec.total_steps,
+        "eval_interval": spec.eval_interval,
         "eval_episodes": spec.eval_episodes,
         "hyperparameters": hyperparameters,
         "demos": None if demo_info is None else {k: demo_info[k] for k in ("sha256", "n_pairs")},
@@ -135,13 +155,19 @@ def is_complete(run_dir: Path) -> bool:
 def load_run(run_dir: Path) -> Run:
     run_dir = Path(run_dir)
     if not is_complete(run_dir):
-        raise HarnessError(f"{run_dir} is not a complete run directory",
-                           "point at a directory inside the run store that has provenance.json")
+        raise HarnessError(
+            f"{run_dir} is not a complete run directory",
+            "point at a directory inside the run store that has provenance.json",
+        )
     curve = pd.read_csv(run_dir / "curve.csv")
     if "train_return" not in curve:  # trained before the column was recorded
         curve["train_return"] = np.nan
-    return Run(run_dir, json.loads((run_dir / "spec.json").read_text()), curve,
-               json.loads((run_dir / "provenance.json").read_text()))
+    return Run(
+        run_dir,
+        json.loads((run_dir / "spec.json").read_text()),
+        curve,
+        json.loads((run_dir / "provenance.json").read_text()),
+    )
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
@@ -160,18 +186,31 @@ class RunLockedError(HarnessError):
 # Errors of the numbers or the code: resuming would meet them again, so their run's hidden
 # directory is removed. Anything else (a full disk, a lost machine, Ctrl-C, the time limit)
 # keeps it to resume.
-RECURRING_ERRORS = (FloatingPointError, ValueError, TypeError, KeyError, IndexError,
-                    AttributeError, RuntimeError, HarnessError)
+RECURRING_ERRORS = (
+    FloatingPointError,
+    ValueError,
+    TypeError,
+    KeyError,
+    IndexError,
+    AttributeError,
+    RuntimeError,
+    HarnessError,
+)
 
 
 def partial_directory(prepared: PreparedRun, store: Path) -> Path:
     return Path(store) / f".partial-{prepared.run_id}"
 
 
-def execute(prepared: PreparedRun, store: Path,
-            on_steps: Callable[[int], None] = lambda n: None,
-            checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-            follow_checkpoint: bool | None = None, deadline: float | None = None) -> Run:
+def execute(
+    prepared: PreparedRun,
+    store: Path,
+    on_steps: Callable[[int], None] = lambda n: None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    device: str = "auto",
+    follow_checkpoint: bool | None = None,
+    deadline: float | None = None,
+) -> Run:
     """Train ``prepared`` into the store unless a complete run with its address exists;
     resume it from its checkpoint if an earlier attempt was interrupted. ``device``: ``auto``
     (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``. A
@@ -189,8 +228,10 @@ def execute(prepared: PreparedRun, store: Path,
     store.mkdir(parents=True, exist_ok=True)
     work_dir = partial_directory(prepared, store)
     lock_path = store / f".lock-{prepared.run_id}"
-    locked = RunLockedError(f"run {prepared.run_id} is being trained by another process",
-                            "wait for it, or stop that process")
+    locked = RunLockedError(
+        f"run {prepared.run_id} is being trained by another process",
+        "wait for it, or stop that process",
+    )
     with open(lock_path, "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
@@ -205,16 +246,27 @@ def execute(prepared: PreparedRun, store: Path,
                     if carry.should_unpack(store, prepared.run_id, work_dir / CHECKPOINT_FILE):
                         carry.unpack_run(store, prepared.run_id)  # packed elsewhere
                     try:
-                        _train_into(prepared, work_dir, on_steps, checkpoint_interval, device,
-                                    follow_checkpoint, deadline)
+                        _train_into(
+                            prepared,
+                            work_dir,
+                            on_steps,
+                            checkpoint_interval,
+                            device,
+                            follow_checkpoint,
+                            deadline,
+                        )
                     except CheckpointDeviceError as exc:  # the checkpoint stays
-                        raise HarnessError(str(exc), "run it on the device its checkpoint "
-                                           "names, or delete its directory") from None
+                        raise HarnessError(
+                            str(exc),
+                            "run it on the device its checkpoint names, or delete its directory",
+                        ) from None
                     except torch.OutOfMemoryError:  # the GPU may be freer next time: keep it
                         raise HarnessError(
                             f"run {prepared.run_id} ran out of GPU memory; its last "
-                            "checkpoint is kept", "run the same command again with fewer "
-                            "--gpu-workers, or with --device cpu") from None
+                            "checkpoint is kept",
+                            "run the same command again with fewer "
+                            "--gpu-workers, or with --device cpu",
+                        ) from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
                         raise  # a carried checkpoint stays: the failure may be this machine's
@@ -243,12 +295,12 @@ class _RunRecorder:
     written with), sittings.json (the parts of the training) after every point, and
     provenance.json at the end."""
 
-    def __init__(self, prepared: PreparedRun, run_dir: Path, device: str,
-                 batch: dict[str, Any] | None = None):
+    def __init__(
+        self, prepared: PreparedRun, run_dir: Path, device: str, batch: dict[str, Any] | None = None
+    ):
         self.prepared, self.run_dir, self.device, self.batch = prepared, run_dir, device, batch
         self.parts_path = run_dir / SITTINGS_FILE
-        self.earlier = (json.loads(self.parts_path.read_text())
-                        if self.parts_path.is_file() else [])
+        self.earlier = json.loads(self.parts_path.read_text()) if self.parts_path.is_file() else []
         self.started = time.time()
         self.started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.resumed_from = 0
@@ -261,8 +313,9 @@ class _RunRecorder:
         curve_path = self.run_dir / "curve.csv"
         if curve_path.is_file():
             with open(curve_path, newline="") as handle:
-                self.earlier_walls = {int(row["step"]): row["wall_s"]
-                                      for row in csv.DictReader(handle)}
+                self.earlier_walls = {
+                    int(row["step"]): row["wall_s"] for row in csv.DictReader(handle)
+                }
         self.curve_file = open(curve_path, "w", newline="")
         self.writer = csv.writer(self.curve_file)
         self.writer.writerow(CURVE_COLUMNS)
@@ -273,23 +326,33 @@ class _RunRecorder:
     def record_part(self) -> None:
         """This part of the training (from its start or resume to now) after the earlier
         ones, in sittings.json."""
-        part = {"started_utc": self.started_iso, "resumed_from_step": self.resumed_from,
-                "wall_time_s": round(time.time() - self.started, 3),
-                "git_revision": provenance.code_revision(),
-                "device": describe_device(self.device)}
+        part = {
+            "started_utc": self.started_iso,
+            "resumed_from_step": self.resumed_from,
+            "wall_time_s": round(time.time() - self.started, 3),
+            "git_revision": provenance.code_revision(),
+            "device": describe_device(self.device),
+        }
         if self.batch is not None:
             part["batch"] = self.batch["id"]
         self.parts_path.write_text(json.dumps(self.earlier + [part], indent=1) + "\n")
 
     def on_eval(self, point: EvalPoint) -> None:
         kept = point.step <= self.resumed_from and point.step in self.earlier_walls
-        self.writer.writerow([
-            point.step, f"{point.mean_return:.6g}", f"{np.std(point.returns):.6g}",
-            ";".join(f"{r:.6g}" for r in point.returns), f"{point.guided_fraction:.6g}",
-            "" if point.gate_open is None else int(point.gate_open),
-            f"{point.train_return:.6g}",
-            self.earlier_walls[point.step] if kept
-            else f"{self.earlier_wall + time.time() - self.started:.3f}"])
+        self.writer.writerow(
+            [
+                point.step,
+                f"{point.mean_return:.6g}",
+                f"{np.std(point.returns):.6g}",
+                ";".join(f"{r:.6g}" for r in point.returns),
+                f"{point.guided_fraction:.6g}",
+                "" if point.gate_open is None else int(point.gate_open),
+                f"{point.train_return:.6g}",
+                self.earlier_walls[point.step]
+                if kept
+                else f"{self.earlier_wall + time.time() - self.started:.3f}",
+            ]
+        )
         self.curve_file.flush()
         self.record_part()
 
@@ -304,45 +367,80 @@ class _RunRecorder:
         parts = json.loads(self.parts_path.read_text())
         wall = sum(s["wall_time_s"] for s in parts)
         payload = {
-            "run_id": prepared.run_id, "spec_hash": prepared.resolved["spec_hash"],
-            "seed": spec.seed, "started_utc": parts[0]["started_utc"],
-            "wall_time_s": round(wall, 3), "sittings": parts,
+            "run_id": prepared.run_id,
+            "spec_hash": prepared.resolved["spec_hash"],
+            "seed": spec.seed,
+            "started_utc": parts[0]["started_utc"],
+            "wall_time_s": round(wall, 3),
+            "sittings": parts,
             "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
-            "git_revision": provenance.code_revision(), "versions": provenance.package_versions(),
-            "machine": provenance.machine(), "device": describe_device(self.device),
-            "demos": None if prepared.demos is None else {
-                "sha256": prepared.demos.sha256, "path": prepared.resolved["demos_path"],
+            "git_revision": provenance.code_revision(),
+            "versions": provenance.package_versions(),
+            "machine": provenance.machine(),
+            "device": describe_device(self.device),
+            "demos": None
+            if prepared.demos is None
+            else {
+                "sha256": prepared.demos.sha256,
+                "path": prepared.resolved["demos_path"],
                 "expert_return_mean": prepared.demos.mean_return,
-                "expert": prepared.demos.metadata.get("expert")}}
+                "expert": prepared.demos.metadata.get("expert"),
+            },
+        }
         if self.batch is not None:
             # the batch's wall time is shared by its members: the rate is per member
             payload["batch"] = {**self.batch, "device": describe_device(self.device)}
         _write_json(self.run_dir / "provenance.json", payload)
 
 
-def _context(prepared: PreparedRun, recorder: _RunRecorder, device: str,
-             **fields: Any) -> TrainContext:
+def _context(
+    prepared: PreparedRun, recorder: _RunRecorder, device: str, **fields: Any
+) -> TrainContext:
     spec = prepared.spec
-    return TrainContext(env_id=spec.env_id, seed=spec.seed, total_steps=spec.total_steps,
-                        eval_interval=spec.eval_interval, eval_episodes=spec.eval_episodes,
-                        demos=prepared.demos, on_eval=recorder.on_eval,
-                        on_resume=recorder.on_resume, device=device, **fields)
+    return TrainContext(
+        env_id=spec.env_id,
+        seed=spec.seed,
+        total_steps=spec.total_steps,
+        eval_interval=spec.eval_interval,
+        eval_episodes=spec.eval_episodes,
+        demos=prepared.demos,
+        on_eval=recorder.on_eval,
+        on_resume=recorder.on_resume,
+        device=device,
+        **fields,
+    )
 
 
-def _train_into(prepared: PreparedRun, run_dir: Path, on_steps: Callable[[int], None],
-                checkpoint_interval: int, requested_device: str,
-                follow_checkpoint: bool, deadline: float | None = None) -> None:
+def _train_into(
+    prepared: PreparedRun,
+    run_dir: Path,
+    on_steps: Callable[[int], None],
+    checkpoint_interval: int,
+    requested_device: str,
+    follow_checkpoint: bool,
+    deadline: float | None = None,
+) -> None:
     device = resolve_device(requested_device, get_algorithm(prepared.spec.algo).gpu)
     parts_path = run_dir / SITTINGS_FILE
     earlier = json.loads(parts_path.read_text()) if parts_path.is_file() else []
     # decided before anything in run_dir is touched
-    device = resume_device(device, _checkpoint_device(run_dir, earlier), follow_checkpoint,
-                           what=f"run {prepared.run_id} ({run_dir})")
+    device = resume_device(
+        device,
+        _checkpoint_device(run_dir, earlier),
+        follow_checkpoint,
+        what=f"run {prepared.run_id} ({run_dir})",
+    )
     recorder = _RunRecorder(prepared, run_dir, device)
     recorder.open()
-    ctx = _context(prepared, recorder, device, on_steps=on_steps,
-                   checkpoint_path=run_dir / CHECKPOINT_FILE,
-                   checkpoint_interval=checkpoint_interval, deadline=deadline)
+    ctx = _context(
+        prepared,
+        recorder,
+        device,
+        on_steps=on_steps,
+        checkpoint_path=run_dir / CHECKPOINT_FILE,
+        checkpoint_interval=checkpoint_interval,
+        deadline=deadline,
+    )
     try:
         get_algorithm(prepared.spec.algo).train(ctx, prepared.config)
     except TimeLimitReached:
@@ -361,10 +459,12 @@ PER_MEMBER_SETTINGS = ("guide_threshold", "guide_noise_std")
 def batch_key(prepared: PreparedRun) -> str:
     """Runs with equal keys may share a batch: everything of the resolved spec but the seed
     and the per-member guidance settings (T2, sigma)."""
-    resolved = {k: v for k, v in prepared.resolved.items()
-                if k not in ("seed", "spec_hash", "demos_path")}
-    resolved["hyperparameters"] = {k: v for k, v in resolved["hyperparameters"].items()
-                                   if k not in PER_MEMBER_SETTINGS}
+    resolved = {
+        k: v for k, v in prepared.resolved.items() if k not in ("seed", "spec_hash", "demos_path")
+    }
+    resolved["hyperparameters"] = {
+        k: v for k, v in resolved["hyperparameters"].items() if k not in PER_MEMBER_SETTINGS
+    }
     return json.dumps(resolved, sort_keys=True, default=str)
 
 
@@ -380,11 +480,16 @@ class BatchOutcome:
     failed: list[tuple[str, str]]  # (run id, reason) of members that failed alone
 
 
-def execute_batch(members: list[PreparedRun], store: Path,
-                  on_steps: Callable[[int], None] = lambda n: None,
-                  checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL, device: str = "auto",
-                  follow_checkpoint: bool | None = None, env_workers: int = 0,
-                  deadline: float | None = None) -> BatchOutcome:
+def execute_batch(
+    members: list[PreparedRun],
+    store: Path,
+    on_steps: Callable[[int], None] = lambda n: None,
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+    device: str = "auto",
+    follow_checkpoint: bool | None = None,
+    env_workers: int = 0,
+    deadline: float | None = None,
+) -> BatchOutcome:
     """Train ``members`` (one algorithm with a batched trainer, one env and budget,
     different seeds) together in this process. Each member lands in the store as its own
     run directory, at the address the one-run path gives it; its provenance names the batch.
@@ -402,10 +507,11 @@ def execute_batch(members: list[PreparedRun], store: Path,
         return BatchOutcome([], [])
     trainer = batched_trainer(members[0].spec.algo)
     if len({batch_key(p) for p in members}) != 1 or trainer is None:
-        raise HarnessError("the runs of a batch must differ only in seed, T2 and sigma, and "
-                           f"their algorithm must have a batched trainer ({members[0].spec.algo})",
-                           "batch only sac, sac-twin-q, drl-eg, rlpd and ibrl runs of one env "
-                           "and budget")
+        raise HarnessError(
+            "the runs of a batch must differ only in seed, T2 and sigma, and "
+            f"their algorithm must have a batched trainer ({members[0].spec.algo})",
+            "batch only sac, sac-twin-q, drl-eg, rlpd and ibrl runs of one env and budget",
+        )
     store.mkdir(parents=True, exist_ok=True)
     ident = batch_id(members)
     batch_dir = store / f".{ident}"
@@ -418,16 +524,24 @@ def execute_batch(members: list[PreparedRun], store: Path,
                 fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
             except BlockingIOError:
                 handle.close()  # the lock file is its holder's to remove
-                raise RunLockedError(f"run {p.run_id} is being trained by another process",
-                                     "wait for it, or stop that process") from None
+                raise RunLockedError(
+                    f"run {p.run_id} is being trained by another process",
+                    "wait for it, or stop that process",
+                ) from None
             locks.append((lock_path, handle))
-            if not lock_path.exists() or \
-                    os.stat(lock_path).st_ino != os.fstat(handle.fileno()).st_ino:
-                raise RunLockedError(f"run {p.run_id} was just finished by another process",
-                                     "run the same command again")
+            if (
+                not lock_path.exists()
+                or os.stat(lock_path).st_ino != os.fstat(handle.fileno()).st_ino
+            ):
+                raise RunLockedError(
+                    f"run {p.run_id} was just finished by another process",
+                    "run the same command again",
+                )
             if is_complete(p.directory(store)):
-                raise RunLockedError(f"run {p.run_id} was just finished by another process",
-                                     "run the same command again")
+                raise RunLockedError(
+                    f"run {p.run_id} was just finished by another process",
+                    "run the same command again",
+                )
         batch_dir.mkdir(exist_ok=True)
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
         if carry.should_unpack(store, ident, batch_dir / CHECKPOINT_FILE):
@@ -436,14 +550,23 @@ def execute_batch(members: list[PreparedRun], store: Path,
         earlier = json.loads(batch_parts.read_text()) if batch_parts.is_file() else []
         resolved = resolve_device(device, has_gpu_path=True)
         try:
-            resolved = resume_device(resolved, _checkpoint_device(batch_dir, earlier),
-                                     follow_checkpoint, what=f"batch {ident} ({batch_dir})")
+            resolved = resume_device(
+                resolved,
+                _checkpoint_device(batch_dir, earlier),
+                follow_checkpoint,
+                what=f"batch {ident} ({batch_dir})",
+            )
         except CheckpointDeviceError as exc:
-            raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
-                               f"delete {batch_dir}") from None
+            raise HarnessError(
+                str(exc), f"run it on the device its checkpoint names, or delete {batch_dir}"
+            ) from None
         # this part is recorded before training: a checkpoint it leaves names its device
-        batch_parts.write_text(json.dumps(earlier + [{
-            "wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1) + "\n")
+        batch_parts.write_text(
+            json.dumps(
+                earlier + [{"wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1
+            )
+            + "\n"
+        )
         info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
         work_dirs = [partial_directory(p, store) for p in members]
         recorders = []
@@ -459,30 +582,49 @@ def execute_batch(members: list[PreparedRun], store: Path,
 
         from baselines.batched import BatchContext
 
-        bctx = BatchContext(contexts, device=resolved, env_workers=env_workers,
-                            on_steps=on_steps, on_resume=on_resume,
-                            on_member_failed=lambda k, why: failures.__setitem__(k, why),
-                            checkpoint_path=batch_dir / CHECKPOINT_FILE,
-                            checkpoint_interval=checkpoint_interval, deadline=deadline)
+        bctx = BatchContext(
+            contexts,
+            device=resolved,
+            env_workers=env_workers,
+            on_steps=on_steps,
+            on_resume=on_resume,
+            on_member_failed=lambda k, why: failures.__setitem__(k, why),
+            checkpoint_path=batch_dir / CHECKPOINT_FILE,
+            checkpoint_interval=checkpoint_interval,
+            deadline=deadline,
+        )
         started = time.time()
         for recorder in recorders:
             recorder.open()
         try:
             trainer(bctx, [p.config for p in members])
         except TimeLimitReached:  # each part's wall time up to the stop; the checkpoint stays
-            batch_parts.write_text(json.dumps(earlier + [{
-                "wall_time_s": round(time.time() - started, 3),
-                "device": describe_device(resolved)}], indent=1) + "\n")
+            batch_parts.write_text(
+                json.dumps(
+                    earlier
+                    + [
+                        {
+                            "wall_time_s": round(time.time() - started, 3),
+                            "device": describe_device(resolved),
+                        }
+                    ],
+                    indent=1,
+                )
+                + "\n"
+            )
             for recorder in recorders:
                 recorder.record_part()
             raise
         except CheckpointDeviceError as exc:
-            raise HarnessError(str(exc), "run it on the device its checkpoint names, or "
-                               f"delete {batch_dir}") from None
+            raise HarnessError(
+                str(exc), f"run it on the device its checkpoint names, or delete {batch_dir}"
+            ) from None
         except torch.OutOfMemoryError:
-            raise HarnessError(f"batch {ident} of {len(members)} runs ran out of GPU memory; "
-                               "its last checkpoint is kept",
-                               "run the same command again with a smaller --batch") from None
+            raise HarnessError(
+                f"batch {ident} of {len(members)} runs ran out of GPU memory; "
+                "its last checkpoint is kept",
+                "run the same command again with a smaller --batch",
+            ) from None
         except RECURRING_ERRORS:
             shutil.rmtree(batch_dir, ignore_errors=True)
             for work in work_dirs:
@@ -491,9 +633,19 @@ def execute_batch(members: list[PreparedRun], store: Path,
         finally:
             for recorder in recorders:
                 recorder.close()
-        batch_parts.write_text(json.dumps(earlier + [{
-            "wall_time_s": round(time.time() - started, 3),
-            "device": describe_device(resolved)}], indent=1) + "\n")
+        batch_parts.write_text(
+            json.dumps(
+                earlier
+                + [
+                    {
+                        "wall_time_s": round(time.time() - started, 3),
+                        "device": describe_device(resolved),
+                    }
+                ],
+                indent=1,
+            )
+            + "\n"
+        )
         runs, failed = [], []
         for k, (p, recorder, work) in enumerate(zip(members, recorders, work_dirs)):
             if k in failures:

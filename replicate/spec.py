@@ -36,12 +36,15 @@ class RunSpec:
         except UnknownEnvError as exc:
             raise HarnessError(str(exc), "pass --env with one of the ids listed") from None
         if self.total_steps <= 0:
-            raise HarnessError(f"step count must be positive, got {self.total_steps}",
-                               "pass --steps N with N > 0")
+            raise HarnessError(
+                f"step count must be positive, got {self.total_steps}", "pass --steps N with N > 0"
+            )
         if self.eval_interval <= 0 or self.eval_episodes <= 0:
-            raise HarnessError(f"evaluation interval and episodes must be positive, got "
-                               f"{self.eval_interval} and {self.eval_episodes}",
-                               "pass --eval-interval and --eval-episodes above 0")
+            raise HarnessError(
+                f"evaluation interval and episodes must be positive, got "
+                f"{self.eval_interval} and {self.eval_episodes}",
+                "pass --eval-interval and --eval-episodes above 0",
+            )
         if self.seed < 0:
             raise HarnessError(f"seed must be >= 0, got {self.seed}", "pass --seed 0 or above")
 

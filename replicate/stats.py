@@ -6,7 +6,6 @@ column of final returns). No function touches a global random state.
 
 from __future__ import annotations
 
-import warnings
 import zlib
 from dataclasses import dataclass
 from typing import Any
@@ -96,7 +95,8 @@ class MeanEstimate:
     def test(self) -> str:
         """The test of 0 in words, with its p-value or why there is none."""
         name = {PAIRED_METHOD: "paired t-test", WELCH_METHOD: "Welch t-test"}.get(
-            self.method, "one-sample t-test")
+            self.method, "one-sample t-test"
+        )
         if self.n < 2 or (self.n_other is not None and self.n_other < 2):
             return f"no {name}: fewer than 2 runs"
         if self.se == 0:
@@ -105,10 +105,17 @@ class MeanEstimate:
         return f"{name} p = {self.p_two_sided:.2g}"
 
     def as_dict(self) -> dict[str, Any]:
-        return {"quantity": self.quantity, "value": self.value, "low": self.low,
-                "high": self.high, "method": self.label, "n": self.n,
-                "n_other": self.n_other, "test": self.test,
-                "p_value": self.p_two_sided}
+        return {
+            "quantity": self.quantity,
+            "value": self.value,
+            "low": self.low,
+            "high": self.high,
+            "method": self.label,
+            "n": self.n,
+            "n_other": self.n_other,
+            "test": self.test,
+            "p_value": self.p_two_sided,
+        }
 
 
 def _one_sided_p(margin: float, se: float, df: float) -> float:
@@ -127,60 +134,94 @@ def _t_bounds(value: float, se: float, df: float, confidence: float) -> tuple[fl
     return value - half, value + half
 
 
-def t_mean(values: np.ndarray, quantity: str = "", confidence: float = CONFIDENCE,
-           method: str = T_METHOD) -> MeanEstimate:
+def t_mean(
+    values: np.ndarray, quantity: str = "", confidence: float = CONFIDENCE, method: str = T_METHOD
+) -> MeanEstimate:
     """Mean over runs with a Student-t interval; with a single run the interval is NaN."""
     values = np.asarray(values, dtype=float).ravel()
     n = len(values)
     value = float(values.mean()) if n else float("nan")
     if n < 2:
-        return MeanEstimate(quantity, value, float("nan"), float("nan"), method, n,
-                            float("nan"), float("nan"), confidence=confidence)
+        return MeanEstimate(
+            quantity,
+            value,
+            float("nan"),
+            float("nan"),
+            method,
+            n,
+            float("nan"),
+            float("nan"),
+            confidence=confidence,
+        )
     se = float(values.std(ddof=1) / np.sqrt(n))
     low, high = _t_bounds(value, se, n - 1, confidence)
-    return MeanEstimate(quantity, value, low, high, method, n, se, float(n - 1),
-                        confidence=confidence)
+    return MeanEstimate(
+        quantity, value, low, high, method, n, se, float(n - 1), confidence=confidence
+    )
 
 
-def paired_mean_difference(a: np.ndarray, b: np.ndarray, quantity: str = "",
-                           confidence: float = CONFIDENCE) -> MeanEstimate:
+def paired_mean_difference(
+    a: np.ndarray, b: np.ndarray, quantity: str = "", confidence: float = CONFIDENCE
+) -> MeanEstimate:
     """Mean of a_i - b_i over runs that share seed i (and so initial weights), with a
     t-interval on the per-seed differences."""
     diffs = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
     return t_mean(diffs, quantity, confidence, PAIRED_METHOD)
 
 
-def welch_mean_difference(a: np.ndarray, b: np.ndarray, quantity: str = "",
-                          confidence: float = CONFIDENCE) -> MeanEstimate:
+def welch_mean_difference(
+    a: np.ndarray, b: np.ndarray, quantity: str = "", confidence: float = CONFIDENCE
+) -> MeanEstimate:
     """mean(a) - mean(b) for runs that share nothing, with a Welch t-interval
     (Welch-Satterthwaite degrees of freedom)."""
     a, b = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
     value = float(a.mean() - b.mean())
     if len(a) < 2 or len(b) < 2:
-        return MeanEstimate(quantity, value, float("nan"), float("nan"), WELCH_METHOD, len(a),
-                            float("nan"), float("nan"), len(b), confidence)
+        return MeanEstimate(
+            quantity,
+            value,
+            float("nan"),
+            float("nan"),
+            WELCH_METHOD,
+            len(a),
+            float("nan"),
+            float("nan"),
+            len(b),
+            confidence,
+        )
     va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
     se = float(np.sqrt(va + vb))
     if se == 0:
         df = float(len(a) + len(b) - 2)
     else:  # a constant group contributes no variance and no degrees of freedom
-        df = float((va + vb) ** 2 / ((va ** 2 / (len(a) - 1)) + (vb ** 2 / (len(b) - 1))))
+        df = float((va + vb) ** 2 / ((va**2 / (len(a) - 1)) + (vb**2 / (len(b) - 1))))
     low, high = _t_bounds(value, se, df, confidence)
-    return MeanEstimate(quantity, value, low, high, WELCH_METHOD, len(a), se, df, len(b),
-                        confidence)
+    return MeanEstimate(
+        quantity, value, low, high, WELCH_METHOD, len(a), se, df, len(b), confidence
+    )
 
 
-def seed_matched_difference(a: dict[int, float], b: dict[int, float], quantity: str = "",
-                            pair: bool = False, confidence: float = CONFIDENCE) -> MeanEstimate:
+def seed_matched_difference(
+    a: dict[int, float],
+    b: dict[int, float],
+    quantity: str = "",
+    pair: bool = False,
+    confidence: float = CONFIDENCE,
+) -> MeanEstimate:
     """mean(a) - mean(b) over runs keyed by seed: paired over the shared seeds when ``pair``
     (the two share initial weights by design) or when both ran exactly the same seeds (same
     env streams); Welch over every run of each otherwise."""
     common = sorted(set(a) & set(b))
     if pair or (set(a) == set(b) and len(common) >= 2):
-        return paired_mean_difference(np.array([a[s] for s in common]),
-                                      np.array([b[s] for s in common]), quantity, confidence)
-    return welch_mean_difference(np.array([a[s] for s in sorted(a)]),
-                                 np.array([b[s] for s in sorted(b)]), quantity, confidence)
+        return paired_mean_difference(
+            np.array([a[s] for s in common]), np.array([b[s] for s in common]), quantity, confidence
+        )
+    return welch_mean_difference(
+        np.array([a[s] for s in sorted(a)]),
+        np.array([b[s] for s in sorted(b)]),
+        quantity,
+        confidence,
+    )
 
 
 def t_mean_columns(scores: np.ndarray, confidence: float = CONFIDENCE) -> Estimate:
@@ -212,8 +253,9 @@ def holm(p_values: list[float]) -> list[float]:
     return adjusted.tolist()
 
 
-def seeds_to_decide(estimate: MeanEstimate, distance: float, confidence: float | None = None,
-                    limit: int = 200) -> int | None:
+def seeds_to_decide(
+    estimate: MeanEstimate, distance: float, confidence: float | None = None, limit: int = 200
+) -> int | None:
     """How many seeds (per group; pairs for a paired difference) would make the interval
     narrow enough to decide a check whose estimate lies ``distance`` from what decides it,
     if the observed mean and spread held: the smallest n whose t-interval half-width is
@@ -225,13 +267,13 @@ def seeds_to_decide(estimate: MeanEstimate, distance: float, confidence: float |
     if estimate.se == 0:
         return estimate.n
     if estimate.n_other is None:
-        variance = estimate.se ** 2 * estimate.n  # the per-seed variance, as observed
+        variance = estimate.se**2 * estimate.n  # the per-seed variance, as observed
         for n in range(2, limit + 1):
             if stats.t.ppf(0.5 + confidence / 2, n - 1) * np.sqrt(variance / n) < distance:
                 return n
         return None
     # Welch: both groups grow to n seeds each, keeping their observed variances
-    variance = estimate.se ** 2 / (1 / estimate.n + 1 / estimate.n_other)
+    variance = estimate.se**2 / (1 / estimate.n + 1 / estimate.n_other)
     for n in range(2, limit + 1):
         if stats.t.ppf(0.5 + confidence / 2, 2 * n - 2) * np.sqrt(2 * variance / n) < distance:
             return n
@@ -246,6 +288,7 @@ def _as_matrix(scores: np.ndarray) -> np.ndarray:
 
 # Aggregate metrics over a (runs, tasks) score matrix (Agarwal et al. 2021). Scores of
 # different tasks must be normalised to a common scale before they are aggregated.
+
 
 def mean_score(scores: np.ndarray) -> float:
     """Mean over tasks of the per-task mean over runs."""
@@ -267,7 +310,7 @@ def interquartile_mean(scores: np.ndarray) -> float:
     if pooled.size == 0 or np.isnan(pooled).any():  # scipy's nan_policy="propagate"
         return float("nan")
     cut = int(0.25 * pooled.size)
-    middle = np.partition(pooled, (cut, pooled.size - cut - 1))[cut:pooled.size - cut]
+    middle = np.partition(pooled, (cut, pooled.size - cut - 1))[cut : pooled.size - cut]
     return float(np.mean(middle))
 
 
@@ -303,15 +346,23 @@ def _resample_runs(scores: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.take_along_axis(scores, rows, axis=0)
 
 
-def stratified_bootstrap_ci(statistic, samples: tuple[np.ndarray, ...],
-                            rng: np.random.Generator, confidence: float = CONFIDENCE,
-                            n_resamples: int = N_BOOTSTRAP) -> Estimate:
+def stratified_bootstrap_ci(
+    statistic,
+    samples: tuple[np.ndarray, ...],
+    rng: np.random.Generator,
+    confidence: float = CONFIDENCE,
+    n_resamples: int = N_BOOTSTRAP,
+) -> Estimate:
     """Percentile CI of ``statistic(*samples)``; each (runs, tasks) sample is resampled
     within each task and independently of the others. The statistic may return an array."""
     samples = tuple(_as_matrix(s) for s in samples)
     value = np.asarray(statistic(*samples), dtype=float)
-    draws = np.stack([np.asarray(statistic(*(_resample_runs(s, rng) for s in samples)),
-                                 dtype=float) for _ in range(n_resamples)])
+    draws = np.stack(
+        [
+            np.asarray(statistic(*(_resample_runs(s, rng) for s in samples)), dtype=float)
+            for _ in range(n_resamples)
+        ]
+    )
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(draws, [tail, 100 - tail], axis=0)
     return Estimate(value, np.minimum(low, value), np.maximum(high, value))

@@ -12,11 +12,14 @@ from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError
 from replicate.templating import report_environment
 
-
 # The demonstrations' mean return that published SAC reaches at 1M steps (issue 14's
 # targets for the harness's experts; replicate/data/published/sac_mujoco.csv has sources).
-EXPERT_TARGETS = {"Hopper-v5": 3000.0, "Walker2d-v5": 4000.0, "HalfCheetah-v5": 9000.0,
-                  "Ant-v5": 4000.0}
+EXPERT_TARGETS = {
+    "Hopper-v5": 3000.0,
+    "Walker2d-v5": 4000.0,
+    "HalfCheetah-v5": 9000.0,
+    "Ant-v5": 4000.0,
+}
 
 
 def table1_rows() -> list[dict[str, Any]]:
@@ -27,12 +30,19 @@ def table1_rows() -> list[dict[str, Any]]:
         live = (env.observation_space.shape[0], env.action_space.shape[0])
         env.close()
         if live != (spec.obs_dim, spec.act_dim):
-            raise RuntimeError(f"{spec.env_id}: spec table says {spec.obs_dim}/{spec.act_dim} "
-                               f"dims but the env has {live[0]}/{live[1]}")
+            raise RuntimeError(
+                f"{spec.env_id}: spec table says {spec.obs_dim}/{spec.act_dim} "
+                f"dims but the env has {live[0]}/{live[1]}"
+            )
         row = asdict(spec)
         differs = spec.paper_obs_dim is not None and spec.paper_obs_dim != spec.obs_dim
-        row["note"] = ("-v5 drops the always-zero contact forces of -v2" if differs
-                       else "not in the paper" if spec.paper_env_id is None else "")
+        row["note"] = (
+            "-v5 drops the always-zero contact forces of -v2"
+            if differs
+            else "not in the paper"
+            if spec.paper_env_id is None
+            else ""
+        )
         path = default_demo_path(spec.env_id)
         row["demo"], row["demo_missing"], row["target"] = None, None, None
         if path.is_file():
@@ -40,14 +50,22 @@ def table1_rows() -> list[dict[str, Any]]:
                 meta = load_demos(path, spec.env_id).metadata
                 row["demo"] = dict(meta, file=path.name)
                 target = EXPERT_TARGETS.get(spec.env_id)
-                row["target"] = None if target is None else {
-                    "value": target, "met": meta["expert_return_mean"] >= target,
-                    "short_by": max(0.0, 1 - meta["expert_return_mean"] / target)}
+                row["target"] = (
+                    None
+                    if target is None
+                    else {
+                        "value": target,
+                        "met": meta["expert_return_mean"] >= target,
+                        "short_by": max(0.0, 1 - meta["expert_return_mean"] / target),
+                    }
+                )
             except DemoError as exc:
                 row["demo_missing"] = f"committed file refused: {exc}"
         else:
-            row["demo_missing"] = ("no demonstrations yet: `nox -s experts -- --env "
-                                   f"{spec.env_id}`, then `nox -s demos`")
+            row["demo_missing"] = (
+                "no demonstrations yet: `nox -s experts -- --env "
+                f"{spec.env_id}`, then `nox -s demos`"
+            )
         rows.append(row)
     return rows
 
@@ -56,8 +74,10 @@ def write_table1_report(out_dir: Path) -> Path:
     """Write ``out_dir/index.html`` (self-contained)."""
     environment = report_environment()
     html = environment.get_template("table1.html").render(
-        title="Table 1 replication: environments and demonstrations", rows=table1_rows(),
-        generated=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        title="Table 1 replication: environments and demonstrations",
+        rows=table1_rows(),
+        generated=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    )
     from replicate.report import _atomic_write
 
     out = Path(out_dir) / "index.html"

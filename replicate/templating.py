@@ -1,4 +1,5 @@
-"""The one Jinja environment every report renders with, and the wording it shares with the claims."""
+"""The one Jinja environment every report renders with, and the wording it shares with the
+claims."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ def count_seeds(n: int, kind: str = "") -> str:
 
 def report_environment() -> jinja2.Environment:
     """Templates from ``replicate/templates``, HTML-escaped, failing on any undefined name."""
-    environment = jinja2.Environment(loader=jinja2.PackageLoader("replicate", "templates"),
-                                     autoescape=jinja2.select_autoescape(["html"]),
-                                     undefined=jinja2.StrictUndefined)
+    environment = jinja2.Environment(
+        loader=jinja2.PackageLoader("replicate", "templates"),
+        autoescape=jinja2.select_autoescape(["html"]),
+        undefined=jinja2.StrictUndefined,
+    )
     environment.filters["seeds"] = count_seeds
     return environment

@@ -13,8 +13,7 @@ TINY = {"hidden_sizes": (16, 16), "batch_size": 16, "learning_starts": 100}
 MOUNTAINCAR = "MountainCarContinuous-v0"
 
 
-def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAINCAR,
-               **overrides):
+def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAINCAR, **overrides):
     """Train ``algo`` briefly; return (curve, whatever ``train`` returns)."""
     algorithm = get_algorithm(algo)
     known = {f.name for f in dataclasses.fields(algorithm.config_cls)}
@@ -22,8 +21,15 @@ def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAI
     config = algorithm.make_config({**tiny, **overrides})
     points: list[EvalPoint] = []
     demos = load_demos(default_demo_path(env_id), env_id) if algorithm.needs_demos else None
-    ctx = TrainContext(env_id=env_id, seed=seed, total_steps=steps, eval_interval=200,
-                       eval_episodes=1, demos=demos, on_eval=points.append)
+    ctx = TrainContext(
+        env_id=env_id,
+        seed=seed,
+        total_steps=steps,
+        eval_interval=200,
+        eval_episodes=1,
+        demos=demos,
+        on_eval=points.append,
+    )
     buffer = algorithm.train(ctx, config)
     return points, buffer
 
@@ -31,18 +37,22 @@ def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAI
 def curve_signature(points: list[EvalPoint]) -> list[tuple]:
     """Comparable form of a curve; the step-0 guided fraction and training return are NaN
     and NaN != NaN."""
+
     def plain(value):
         return None if isinstance(value, float) and math.isnan(value) else value
-    return [(p.step, tuple(p.returns), plain(p.guided_fraction), plain(p.train_return))
-            for p in points]
+
+    return [
+        (p.step, tuple(p.returns), plain(p.guided_fraction), plain(p.train_return)) for p in points
+    ]
 
 
 class _Interrupted(Exception):
     pass
 
 
-def batch_curves(algo: str, config, path, stop_at: int | None = None, seeds=(0, 1),
-                 steps: int = 400) -> dict[int, list[EvalPoint]]:
+def batch_curves(
+    algo: str, config, path, stop_at: int | None = None, seeds=(0, 1), steps: int = 400
+) -> dict[int, list[EvalPoint]]:
     """Train ``seeds`` of ``algo`` on MountainCar as one seed batch checkpointing into
     ``path`` every 100 steps; with ``stop_at``, stop as if killed at that call of the
     progress callback. Each member's evaluation points, by seed."""
@@ -57,10 +67,12 @@ def batch_curves(algo: str, config, path, stop_at: int | None = None, seeds=(0, 
         seen[0] += 1
         if stop_at is not None and seen[0] == stop_at:
             raise _Interrupted
-    contexts = [TrainContext(MOUNTAINCAR, s, steps, 200, 1, demos=demos,
-                             on_eval=points[s].append) for s in seeds]
-    bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
-                        checkpoint_path=path)
+
+    contexts = [
+        TrainContext(MOUNTAINCAR, s, steps, 200, 1, demos=demos, on_eval=points[s].append)
+        for s in seeds
+    ]
+    bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100, checkpoint_path=path)
     try:
         batched_trainer(algo)(bctx, [config] * len(seeds))
     except _Interrupted:
@@ -68,8 +80,9 @@ def batch_curves(algo: str, config, path, stop_at: int | None = None, seeds=(0, 
     return points
 
 
-def assert_batch_updates_agree(stacked, singles: list, buffers: list, rows: int, seeds,
-                               updates: int) -> None:
+def assert_batch_updates_agree(
+    stacked, singles: list, buffers: list, rows: int, seeds, updates: int
+) -> None:
     """``updates`` updates of a seed batch and of each member's one-run agent, each drawing
     its replay rows from a generator of its seed: the same losses, member by member, within
     1e-5."""
@@ -84,8 +97,9 @@ def assert_batch_updates_agree(stacked, singles: list, buffers: list, rows: int,
             reference = agent.update(buffers[k].sample(rows, one_rngs[k]))
             assert set(losses) == set(reference)
             for name, value in reference.items():
-                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5,
-                                                               rel=1e-5), name
+                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5, rel=1e-5), (
+                    name
+                )
 
 
 def assert_batch_policies_agree(stacked, singles: list) -> None:

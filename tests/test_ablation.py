@@ -19,8 +19,20 @@ def test_area_under_curve_hand_computed(tmp_path):
 
 def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "report"
-    args = ["ablate-threshold", "--profile", "smoke", "--seeds", "1", "--store", str(store),
-            "--out", str(out), "--thresholds", "0", "1000000"]
+    args = [
+        "ablate-threshold",
+        "--profile",
+        "smoke",
+        "--seeds",
+        "1",
+        "--store",
+        str(store),
+        "--out",
+        str(out),
+        "--thresholds",
+        "0",
+        "1000000",
+    ]
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["zero_threshold_equals_sac"] == {"pairs": 1, "equal": 1, "holds": True}
@@ -39,9 +51,28 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
 
 def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "report"
-    assert main(["ablate-threshold", "--profile", "smoke", "--seeds", "2", "--thresholds", "0",
-                 "0.05", "--sigmas", "0.1", "--store", str(store), "--out", str(out),
-                 "--dry-run"]) == 0
+    assert (
+        main(
+            [
+                "ablate-threshold",
+                "--profile",
+                "smoke",
+                "--seeds",
+                "2",
+                "--thresholds",
+                "0",
+                "0.05",
+                "--sigmas",
+                "0.1",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--dry-run",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "dry run: 6 runs, 0 already in" in printed
     points = [line for line in printed.splitlines() if " drl-eg " in line]
@@ -56,8 +87,9 @@ def test_a_plan_tells_points_apart_whatever_order_their_runs_come_in(tmp_path, c
     from replicate.spec import RunSpec
 
     default = prepare(RunSpec("drl-eg", "MountainCarContinuous-v0", 0, 400, 200, 1, {}))
-    point = prepare(RunSpec("drl-eg", "MountainCarContinuous-v0", 1, 400, 200, 1,
-                            {"guide_threshold": 0.2}))
+    point = prepare(
+        RunSpec("drl-eg", "MountainCarContinuous-v0", 1, 400, 200, 1, {"guide_threshold": 0.2})
+    )
     for runs in ([default, point], [point, default]):
         print_plan(runs, runs, tmp_path, workers=1)
         lines = [line for line in capsys.readouterr().out.splitlines() if " drl-eg " in line]
@@ -68,9 +100,33 @@ def test_with_batch_the_whole_sweep_trains_as_one_batch_and_t2_zero_still_equals
     from replicate.runner import load_run
 
     store, out = tmp_path / "runs", tmp_path / "report"
-    assert main(["ablate-threshold", "--profile", "smoke", "--seeds", "2", "--store", str(store),
-                 "--out", str(out), "--thresholds", "0", "1000000", "--batch", "8",
-                 "--workers", "1", "--device", "cpu", "--checkpoint-interval", "0"]) == 0
+    assert (
+        main(
+            [
+                "ablate-threshold",
+                "--profile",
+                "smoke",
+                "--seeds",
+                "2",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--thresholds",
+                "0",
+                "1000000",
+                "--batch",
+                "8",
+                "--workers",
+                "1",
+                "--device",
+                "cpu",
+                "--checkpoint-interval",
+                "0",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     drl_eg = [load_run(store / run) for row in summary["rows"] for run in row["runs"]]
     assert [r.provenance["batch"]["size"] for r in drl_eg] == [4] * 4  # both points, one batch
@@ -82,45 +138,97 @@ def test_a_failed_grid_point_is_trained_when_the_sweep_runs_again(tmp_path):
     store, out = tmp_path / "runs", tmp_path / "report"
     store.mkdir()
     grid = {"guide_threshold": [0.0, 1000000.0], "guide_noise_std": [0.1]}
-    grid_id = hashlib.sha256(json.dumps([grid["guide_threshold"],
-                                         grid["guide_noise_std"]]).encode()).hexdigest()[:8]
+    grid_id = hashlib.sha256(
+        json.dumps([grid["guide_threshold"], grid["guide_noise_std"]]).encode()
+    ).hexdigest()[:8]
     study = optuna.create_study(
         study_name=f"ablate-threshold-smoke-MountainCarContinuous-v0-s1-{grid_id}",
-        storage=f"sqlite:///{store / 'ablate-threshold.db'}", direction="maximize")
-    study.add_trial(optuna.trial.create_trial(  # an earlier call failed at T2 = always
-        state=optuna.trial.TrialState.FAIL,
-        params={"guide_threshold": 1000000.0, "guide_noise_std": 0.1},
-        distributions={k: optuna.distributions.CategoricalDistribution(v)
-                       for k, v in grid.items()}))
-    args = ["ablate-threshold", "--profile", "smoke", "--seeds", "1", "--store", str(store),
-            "--out", str(out), "--thresholds", "0", "1000000"]
+        storage=f"sqlite:///{store / 'ablate-threshold.db'}",
+        direction="maximize",
+    )
+    study.add_trial(
+        optuna.trial.create_trial(  # an earlier call failed at T2 = always
+            state=optuna.trial.TrialState.FAIL,
+            params={"guide_threshold": 1000000.0, "guide_noise_std": 0.1},
+            distributions={
+                k: optuna.distributions.CategoricalDistribution(v) for k, v in grid.items()
+            },
+        )
+    )
+    args = [
+        "ablate-threshold",
+        "--profile",
+        "smoke",
+        "--seeds",
+        "1",
+        "--store",
+        str(store),
+        "--out",
+        str(out),
+        "--thresholds",
+        "0",
+        "1000000",
+    ]
     assert main(args) == 0
     rows = json.loads((out / "summary.json").read_text())["rows"]
     assert [len(r["runs"]) for r in rows] == [1, 1]
 
 
-def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(tmp_path,
-                                                                                 monkeypatch):
+def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
+    tmp_path, monkeypatch
+):
     import dataclasses
 
     from replicate import ablation, profiles
 
     env_id = "Walker2d-v5"
     smoke = profiles.PROFILES["smoke"]
-    tiny = dataclasses.replace(smoke, steps={**smoke.steps, env_id: 200},
-                               eval_interval={**smoke.eval_interval, env_id: 100})
+    tiny = dataclasses.replace(
+        smoke,
+        steps={**smoke.steps, env_id: 200},
+        eval_interval={**smoke.eval_interval, env_id: 100},
+    )
     monkeypatch.setitem(profiles.PROFILES, "smoke", tiny)
     spacing = ablation.threshold_spacing(env_id)
     assert spacing and ablation.default_thresholds("smoke", env_id) == [
-        spacing, 4 * spacing, 16 * spacing, 64 * spacing, ablation.ALWAYS]
+        spacing,
+        4 * spacing,
+        16 * spacing,
+        64 * spacing,
+        ablation.ALWAYS,
+    ]
     store, out = tmp_path / "runs", tmp_path / "report"
-    assert main(["ablate-threshold", "--profile", "smoke", "--env", env_id, "--seeds", "1",
-                 "--store", str(store), "--out", str(out), "--workers", "1",
-                 "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "ablate-threshold",
+                "--profile",
+                "smoke",
+                "--env",
+                env_id,
+                "--seeds",
+                "1",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--workers",
+                "1",
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["spacing"] == spacing
     assert [r["label"].split(" ")[0] for r in summary["rows"]] == [
-        "1x", "4x", "16x", "64x", "always"]
+        "1x",
+        "4x",
+        "16x",
+        "64x",
+        "always",
+    ]
     shares = [r["admitted_random_share"] for r in summary["rows"]]  # random play's states
     assert shares == sorted(shares) and shares[-1] == 1.0 and shares[0] < 1.0
     html = (out / "index.html").read_text()
@@ -141,8 +249,9 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
     # the MuJoCo rule's standing: one seed of Walker2d only, so no choice yet
     rule = summary["t2_rule"]
     assert not rule["complete"] and rule["choice"] is None
-    assert all(list(r["per_env"]) == [env_id] and r["per_env"][env_id]["n"] == 1
-               for r in rule["rows"])
+    assert all(
+        list(r["per_env"]) == [env_id] and r["per_env"][env_id]["n"] == 1 for r in rule["rows"]
+    )
     assert 'id="t2-rule"' in html and "Not chosen yet" in html
 
 
@@ -152,8 +261,10 @@ def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
     from replicate.ablation import T2_RULE_SETTINGS, choose_t2_rule
 
     envs = ("Ant-v5", "Walker2d-v5")
-    gains = {setting: {"Ant-v5": [0.1 * i] * 3, "Walker2d-v5": [0.0, 0.1, 0.2]}
-             for i, setting in enumerate(T2_RULE_SETTINGS)}
+    gains = {
+        setting: {"Ant-v5": [0.1 * i] * 3, "Walker2d-v5": [0.0, 0.1, 0.2]}
+        for i, setting in enumerate(T2_RULE_SETTINGS)
+    }
     gains["16x"] = {"Ant-v5": [0.5, 0.6, 0.7], "Walker2d-v5": [0.3, 0.2, 0.1]}  # mean 0.4
     rng = np.random.default_rng(0)
     choice = choose_t2_rule(gains, rng, envs, seeds=3)

@@ -14,9 +14,15 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.batched import (BatchContext, StackedGuidedExplorer, StackedSACAgent,
-                               StackedTwinQAgent, agent_state, evaluate_members,
-                               load_agent_state)
+from baselines.batched import (
+    BatchContext,
+    StackedGuidedExplorer,
+    StackedSACAgent,
+    StackedTwinQAgent,
+    agent_state,
+    evaluate_members,
+    load_agent_state,
+)
 from baselines.common.buffer import Batch
 from baselines.common.context import TrainContext
 from baselines.common.evaluation import evaluate
@@ -36,17 +42,21 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _agents(agent_cls, config, seeds=SEEDS):
-    return [agent_cls(OBS, ACT, -np.ones(ACT), np.ones(ACT), config, seed=s, cuda_graphs=False)
-            for s in seeds]
+    return [
+        agent_cls(OBS, ACT, -np.ones(ACT), np.ones(ACT), config, seed=s, cuda_graphs=False)
+        for s in seeds
+    ]
 
 
 def _minibatches(generator: torch.Generator) -> Batch:
     n = len(SEEDS)
-    return Batch(torch.randn(n, ROWS, OBS, generator=generator),
-                 torch.rand(n, ROWS, ACT, generator=generator) * 2 - 1,
-                 torch.randn(n, ROWS, generator=generator),
-                 torch.randn(n, ROWS, OBS, generator=generator),
-                 (torch.rand(n, ROWS, generator=generator) < 0.2).float())
+    return Batch(
+        torch.randn(n, ROWS, OBS, generator=generator),
+        torch.rand(n, ROWS, ACT, generator=generator) * 2 - 1,
+        torch.randn(n, ROWS, generator=generator),
+        torch.randn(n, ROWS, OBS, generator=generator),
+        (torch.rand(n, ROWS, generator=generator) < 0.2).float(),
+    )
 
 
 def _member(batch: Batch, k: int) -> Batch:
@@ -60,30 +70,41 @@ def test_batched_step_equals_one_run_steps(twin_q):
     config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=ROWS)
     agent_cls = TwinQSACAgent if twin_q else SACAgent
     singles = _agents(agent_cls, config)
-    stacked = (StackedTwinQAgent if twin_q else StackedSACAgent)(_agents(agent_cls, config),
-                                                                 config, "cpu")
+    stacked = (StackedTwinQAgent if twin_q else StackedSACAgent)(
+        _agents(agent_cls, config), config, "cpu"
+    )
     generator = torch.Generator().manual_seed(7)
     for _ in range(3):
         batch = _minibatches(generator)
-        noises = [torch.randn(len(SEEDS), ROWS, ACT, generator=generator)
-                  for _ in range(2 if twin_q else 1)]
+        noises = [
+            torch.randn(len(SEEDS), ROWS, ACT, generator=generator)
+            for _ in range(2 if twin_q else 1)
+        ]
         losses = stacked._gradient_step(batch, tuple(noises) if twin_q else noises[0])
         for k, agent in enumerate(singles):
             one = _member(batch, k)
-            inputs = dict(obs=one.observations, actions=one.actions, rewards=one.rewards,
-                          next_obs=one.next_observations, terminated=one.terminated)
+            inputs = dict(
+                obs=one.observations,
+                actions=one.actions,
+                rewards=one.rewards,
+                next_obs=one.next_observations,
+                terminated=one.terminated,
+            )
             if twin_q:
-                reference = agent._gradient_step(**inputs, next_noise=noises[0][k],
-                                                 new_noise=noises[1][k])
+                reference = agent._gradient_step(
+                    **inputs, next_noise=noises[0][k], new_noise=noises[1][k]
+                )
             else:
                 reference = agent._gradient_step(**inputs, noise=noises[0][k])
             for name in ("q_loss", "policy_loss", "entropy"):
-                assert float(losses[name][k]) == pytest.approx(float(reference[name]),
-                                                               abs=1e-5, rel=1e-5)
+                assert float(losses[name][k]) == pytest.approx(
+                    float(reference[name]), abs=1e-5, rel=1e-5
+                )
     for k, agent in enumerate(singles):
-        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k),
-                                         [m for m in agent.policy.trunk
-                                          if isinstance(m, torch.nn.Linear)]):
+        for (weight, bias), layer in zip(
+            stacked.policy.trunk.member_linear(k),
+            [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)],
+        ):
             assert torch.allclose(weight, layer.weight, atol=1e-5)
             assert torch.allclose(bias, layer.bias, atol=1e-5)
 
@@ -93,9 +114,10 @@ def test_members_start_from_the_one_run_weights_of_their_seed():
     stacked = StackedSACAgent(_agents(SACAgent, config, seeds=(4, 9)), config, "cpu")
     for k, seed in enumerate((4, 9)):
         alone = _agents(SACAgent, config, seeds=(seed,))[0]
-        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k),
-                                         [m for m in alone.policy.trunk
-                                          if isinstance(m, torch.nn.Linear)]):
+        for (weight, bias), layer in zip(
+            stacked.policy.trunk.member_linear(k),
+            [m for m in alone.policy.trunk if isinstance(m, torch.nn.Linear)],
+        ):
             assert torch.equal(weight, layer.weight) and torch.equal(bias, layer.bias)
         q1 = [m for m in alone.q1.net if isinstance(m, torch.nn.Linear)]
         for (weight, _), layer in zip(stacked.critics.member_linear(2 * k), q1):
@@ -114,7 +136,7 @@ def test_a_member_comes_out_of_the_stack_as_its_one_run_policy():
     for k in range(2):
         alone = stacked.policy.member_policy(k)
         assert set(alone.state_dict()) == set(agents[k].policy.state_dict())
-        acted = alone.deterministic(torch.from_numpy(obs[k:k + 1]))[0].detach().numpy()
+        acted = alone.deterministic(torch.from_numpy(obs[k : k + 1]))[0].detach().numpy()
         np.testing.assert_allclose(acted, stacked.act_deterministic(obs)[k], atol=1e-6)
     assert torch.equal(torch.get_rng_state(), state)  # taking a member out draws nothing
 
@@ -131,24 +153,31 @@ def test_batched_guider_decides_and_acts_as_the_one_run_guider():
     guided_total = 0
     for _ in range(300):
         # near the demonstrations and far from them, the same state for every member
-        state = (demos.observations[rng.integers(len(demos.observations))]
-                 + rng.normal(0, 0.05, 2)).astype(np.float32)
+        state = (
+            demos.observations[rng.integers(len(demos.observations))] + rng.normal(0, 0.05, 2)
+        ).astype(np.float32)
         obs = np.repeat(state[None], len(SEEDS), axis=0)
         guided, index = explorer.decide(obs, np.ones(len(SEEDS), dtype=bool))
         for k, single in enumerate(singles):
             expected = single.guide(state)
             assert guided[k] == (expected is not None)
             if expected is not None:  # same nearest demonstration, same noise stream
-                ours = np.clip(explorer.demo_actions[index[k]] + configs[k].guide_noise_std
-                               * explorer.rngs[k].standard_normal(1), low, high)
+                ours = np.clip(
+                    explorer.demo_actions[index[k]]
+                    + configs[k].guide_noise_std * explorer.rngs[k].standard_normal(1),
+                    low,
+                    high,
+                )
                 assert np.allclose(ours, expected, atol=1e-6)
                 guided_total += 1
     assert 0 < guided_total < 300 * len(SEEDS)  # both answers occurred
 
 
 def _mountaincar_agents(configs):
-    return [SACAgent(2, 1, np.array([-1.0]), np.array([1.0]), c, seed=s, cuda_graphs=False)
-            for c, s in zip(configs, SEEDS)]
+    return [
+        SACAgent(2, 1, np.array([-1.0]), np.array([1.0]), c, seed=s, cuda_graphs=False)
+        for c, s in zip(configs, SEEDS)
+    ]
 
 
 def test_env_batch_steps_only_active_envs_and_restores_mid_episode():
@@ -169,6 +198,7 @@ def test_env_batch_steps_only_active_envs_and_restores_mid_episode():
 def test_batched_evaluation_equals_one_run_evaluation():
     """Member k's episodes are those ``evaluate`` gives on its own env, whatever the
     episode lengths of the others."""
+
     def policy(obs):
         return np.tanh(obs[..., :1] * 3.0 + obs[..., 1:2] * 40.0).astype(np.float32)
 
@@ -200,14 +230,18 @@ def test_batch_lands_as_runs_under_the_one_run_addresses(tmp_path):
 def test_batched_curves_are_deterministic_and_independent_of_neighbours(tmp_path):
     """Same members, same curves; member 1 trained beside another seed than before ends on
     the same curve (V-SAC on CPU, batches of two or more)."""
-    first = execute_batch([prepare(s) for s in _specs(seeds=(0, 1))], tmp_path / "a",
-                          device="cpu").runs
-    again = execute_batch([prepare(s) for s in _specs(seeds=(0, 1))], tmp_path / "b",
-                          device="cpu").runs
-    other = execute_batch([prepare(s) for s in _specs(seeds=(5, 1))], tmp_path / "c",
-                          device="cpu").runs
-    assert [r.curve["returns"].tolist() for r in first] == \
-        [r.curve["returns"].tolist() for r in again]
+    first = execute_batch(
+        [prepare(s) for s in _specs(seeds=(0, 1))], tmp_path / "a", device="cpu"
+    ).runs
+    again = execute_batch(
+        [prepare(s) for s in _specs(seeds=(0, 1))], tmp_path / "b", device="cpu"
+    ).runs
+    other = execute_batch(
+        [prepare(s) for s in _specs(seeds=(5, 1))], tmp_path / "c", device="cpu"
+    ).runs
+    assert [r.curve["returns"].tolist() for r in first] == [
+        r.curve["returns"].tolist() for r in again
+    ]
     assert first[1].curve["returns"].tolist() == other[1].curve["returns"].tolist()
 
 
@@ -215,8 +249,10 @@ def test_a_diverging_member_fails_alone():
     members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1, 2))]
     failures = {}
     curves = {k: [] for k in range(3)}
-    contexts = [TrainContext(MOUNTAINCAR, p.spec.seed, 600, 200, 1, on_eval=curves[k].append)
-                for k, p in enumerate(members)]
+    contexts = [
+        TrainContext(MOUNTAINCAR, p.spec.seed, 600, 200, 1, on_eval=curves[k].append)
+        for k, p in enumerate(members)
+    ]
     original = StackedSACAgent._gradient_step
 
     def poisoned(self, batch, noise):
@@ -230,7 +266,8 @@ def test_a_diverging_member_fails_alone():
     try:
         batched_trainer("sac")(
             BatchContext(contexts, on_member_failed=lambda k, why: failures.update({k: why})),
-            [p.config for p in members])
+            [p.config for p in members],
+        )
     finally:
         StackedSACAgent._gradient_step = original
     assert list(failures) == [1] and "diverged" in failures[1]
@@ -279,8 +316,9 @@ def test_kill_9_and_resume_a_batch_ends_on_the_uninterrupted_curves(tmp_path):
     script.write_text(KILL_SCRIPT)
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "disable"}
     whole = tmp_path / "whole"
-    subprocess.run([sys.executable, str(script), str(whole), "0"], check=True, env=env,
-                   cwd=ROOT, timeout=300)
+    subprocess.run(
+        [sys.executable, str(script), str(whole), "0"], check=True, env=env, cwd=ROOT, timeout=300
+    )
     killed = tmp_path / "killed"
     proc = subprocess.Popen([sys.executable, str(script), str(killed), "1"], env=env, cwd=ROOT)
     deadline = time.time() + 240
@@ -294,12 +332,16 @@ def test_kill_9_and_resume_a_batch_ends_on_the_uninterrupted_curves(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not list(killed.glob("drl-eg*"))  # nothing complete yet
-    subprocess.run([sys.executable, str(script), str(killed), "1"], check=True, env=env,
-                   cwd=ROOT, timeout=300)
+    subprocess.run(
+        [sys.executable, str(script), str(killed), "1"], check=True, env=env, cwd=ROOT, timeout=300
+    )
     for name in sorted(p.name for p in whole.iterdir() if not p.name.startswith(".")):
         a = (whole / name / "curve.csv").read_text().splitlines()
         b = (killed / name / "curve.csv").read_text().splitlines()
-        strip = lambda lines: [line.rsplit(",", 1)[0] for line in lines]  # wall time differs
+
+        def strip(lines):
+            return [line.rsplit(",", 1)[0] for line in lines]  # wall time differs
+
         assert strip(a) == strip(b)
         parts = json.loads((killed / name / "sittings.json").read_text())
         assert len(parts) == 2 and parts[1]["resumed_from_step"] >= 600
@@ -307,8 +349,18 @@ def test_kill_9_and_resume_a_batch_ends_on_the_uninterrupted_curves(tmp_path):
 
 def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
     store = tmp_path / "store"
-    base = [sys.executable, "-m", "replicate", "fig3", "--profile", "smoke", "--store",
-            str(store), "--out", str(tmp_path / "report")]
+    base = [
+        sys.executable,
+        "-m",
+        "replicate",
+        "fig3",
+        "--profile",
+        "smoke",
+        "--store",
+        str(store),
+        "--out",
+        str(tmp_path / "report"),
+    ]
     env = {**os.environ, "MUJOCO_GL": "disable"}
     for extra, needle in ((["--batch", "0"], "batch size must be >= 1"),):
         result = subprocess.run(base + extra, capture_output=True, text=True, env=env, cwd=ROOT)
@@ -326,18 +378,23 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
 def test_plan_batches_groups_by_everything_but_the_seed_and_t2():
     from replicate.experiments import plan_batches
 
-    specs = _specs(seeds=(0, 1, 2)) + _specs(algo="sac", seeds=(0, 1)) \
-        + [RunSpec("ppo", MOUNTAINCAR, 0, 600, 200, 1, {})] \
-        + _specs(seeds=(0,), guide_threshold=0.2, guide_noise_std=0.3) \
+    specs = (
+        _specs(seeds=(0, 1, 2))
+        + _specs(algo="sac", seeds=(0, 1))
+        + [RunSpec("ppo", MOUNTAINCAR, 0, 600, 200, 1, {})]
+        + _specs(seeds=(0,), guide_threshold=0.2, guide_noise_std=0.3)
         + _specs(seeds=(0,), learning_rate=1e-3)
+    )
     tasks = plan_batches([prepare(s) for s in specs], batch=2)
-    shapes = sorted((t[0].spec.algo, len(t)) if isinstance(t, list) else (t.spec.algo, 0)
-                    for t in tasks)
+    shapes = sorted(
+        (t[0].spec.algo, len(t)) if isinstance(t, list) else (t.spec.algo, 0) for t in tasks
+    )
     # T2 and sigma are per member: the 0.2 point joins seed 2 of the default point; another
     # learning rate is another batch
     assert shapes == [("drl-eg", 1), ("drl-eg", 2), ("drl-eg", 2), ("ppo", 0), ("sac", 2)]
-    mixed = next(t for t in tasks if isinstance(t, list) and len({
-        p.config.guide_threshold for p in t}) == 2)
+    mixed = next(
+        t for t in tasks if isinstance(t, list) and len({p.config.guide_threshold for p in t}) == 2
+    )
     assert [p.spec.seed for p in mixed] == [2, 0]
     assert not any(isinstance(t, list) for t in plan_batches([prepare(s) for s in specs], None))
 
@@ -345,16 +402,27 @@ def test_plan_batches_groups_by_everything_but_the_seed_and_t2():
 def test_a_t2_sweep_in_one_batch_gives_each_point_its_own_curve(tmp_path):
     """Members that differ in T2 and sigma (the same seed included) train as one batch on
     CPU and end on the curves their own points give in batches of their own."""
-    points = [{"guide_threshold": 0.02, "guide_noise_std": 0.1},
-              {"guide_threshold": 0.3, "guide_noise_std": 0.3}]
-    mixed = execute_batch([prepare(s) for point in points for s in _specs(seeds=(0,), **point)],
-                          tmp_path / "mixed", device="cpu").runs
-    alone = [execute_batch([prepare(s) for s in _specs(seeds=(0, 1), **point)],
-                           tmp_path / f"alone{i}", device="cpu").runs[0]
-             for i, point in enumerate(points)]
+    points = [
+        {"guide_threshold": 0.02, "guide_noise_std": 0.1},
+        {"guide_threshold": 0.3, "guide_noise_std": 0.3},
+    ]
+    mixed = execute_batch(
+        [prepare(s) for point in points for s in _specs(seeds=(0,), **point)],
+        tmp_path / "mixed",
+        device="cpu",
+    ).runs
+    alone = [
+        execute_batch(
+            [prepare(s) for s in _specs(seeds=(0, 1), **point)],
+            tmp_path / f"alone{i}",
+            device="cpu",
+        ).runs[0]
+        for i, point in enumerate(points)
+    ]
     assert [r.path.name for r in mixed] == [r.path.name for r in alone]
-    assert [r.curve["returns"].tolist() for r in mixed] == \
-        [r.curve["returns"].tolist() for r in alone]
+    assert [r.curve["returns"].tolist() for r in mixed] == [
+        r.curve["returns"].tolist() for r in alone
+    ]
     guided = [r.curve["guided_fraction"].iloc[1:].mean() for r in mixed]
     assert guided[0] < guided[1]  # each member kept its own T2
 
@@ -366,8 +434,10 @@ def test_every_batched_algorithm_trains_a_tiny_batch():
         known = set(algorithm.config_cls.__dataclass_fields__)
         config = algorithm.make_config({k: v for k, v in TINY.items() if k in known})
         points = {0: [], 1: []}
-        contexts = [TrainContext(MOUNTAINCAR, s, 300, 150, 1, demos=demos,
-                                 on_eval=points[s].append) for s in (0, 1)]
+        contexts = [
+            TrainContext(MOUNTAINCAR, s, 300, 150, 1, demos=demos, on_eval=points[s].append)
+            for s in (0, 1)
+        ]
         batched_trainer(algo)(BatchContext(contexts), [config, config])
         assert [p.step for p in points[0]] == [0, 150, 300], algo
         assert curve_signature(points[0]) != curve_signature(points[1]), algo
@@ -395,10 +465,15 @@ def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
             seen[0] += 1
             if stop_at is not None and seen[0] == stop_at:
                 raise Interrupted
+
         contexts = [TrainContext(MOUNTAINCAR, p.spec.seed, 800, 200, 1) for p in members]
-        bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100,
-                            checkpoint_path=tmp_path / "checkpoint.pt",
-                            on_member_failed=lambda k, why: failures.update({k: why}))
+        bctx = BatchContext(
+            contexts,
+            on_steps=on_steps,
+            checkpoint_interval=100,
+            checkpoint_path=tmp_path / "checkpoint.pt",
+            on_member_failed=lambda k, why: failures.update({k: why}),
+        )
         StackedSACAgent._gradient_step = poisoned if poison else original
         try:
             batched_trainer("sac")(bctx, [p.config for p in members])
@@ -429,8 +504,9 @@ def test_a_batch_records_the_training_returns_of_the_one_run_path(tmp_path):
     specs = [RunSpec("sac", "Hopper-v5", seed, 400, 200, 1, hyper) for seed in (0, 1)]
     runs = execute_batch([prepare(s) for s in specs], tmp_path, device="cpu").runs
     for seed, run in zip((0, 1), runs):
-        points, _ = train_tiny("sac", seed=seed, steps=400, env_id="Hopper-v5",
-                               learning_starts=1_000)
+        points, _ = train_tiny(
+            "sac", seed=seed, steps=400, env_id="Hopper-v5", learning_starts=1_000
+        )
         one_run = [p.train_return for p in points]
         assert np.isnan(one_run[0]) and np.isfinite(one_run[1:]).all()
         np.testing.assert_allclose(run.curve["train_return"], one_run, rtol=1e-5)
@@ -442,8 +518,9 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
     neither the products nor Adam may round a member's numbers by how many members are
     stacked (the fused Adam's scalar tail did, on AVX2)."""
     config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=ROWS)
-    agent_cls, stack_cls = ((TwinQSACAgent, StackedTwinQAgent) if twin_q
-                            else (SACAgent, StackedSACAgent))
+    agent_cls, stack_cls = (
+        (TwinQSACAgent, StackedTwinQAgent) if twin_q else (SACAgent, StackedSACAgent)
+    )
 
     def stack(seeds):  # the policy's output bias: 2 * ACT floats per member, short of a vector
         return stack_cls(_agents(agent_cls, config, seeds), config, "cpu")
@@ -455,13 +532,14 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
             resumed = stack((0, 1) * 4)
             load_agent_state(resumed, agent_state(large))
             large = resumed
-        batch = Batch(torch.randn(2, ROWS, OBS, generator=generator),
-                      torch.rand(2, ROWS, ACT, generator=generator) * 2 - 1,
-                      torch.randn(2, ROWS, generator=generator),
-                      torch.randn(2, ROWS, OBS, generator=generator),
-                      (torch.rand(2, ROWS, generator=generator) < 0.2).float())
-        noises = [torch.randn(2, ROWS, ACT, generator=generator)
-                  for _ in range(2 if twin_q else 1)]
+        batch = Batch(
+            torch.randn(2, ROWS, OBS, generator=generator),
+            torch.rand(2, ROWS, ACT, generator=generator) * 2 - 1,
+            torch.randn(2, ROWS, generator=generator),
+            torch.randn(2, ROWS, OBS, generator=generator),
+            (torch.rand(2, ROWS, generator=generator) < 0.2).float(),
+        )
+        noises = [torch.randn(2, ROWS, ACT, generator=generator) for _ in range(2 if twin_q else 1)]
         repeated = Batch(*[t.repeat(4, *[1] * (t.dim() - 1)) for t in vars(batch).values()])
         if twin_q:
             small._gradient_step(batch, tuple(noises))
@@ -474,14 +552,17 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
     for name in small.MODULES:
         one, many = getattr(small, name), getattr(large, name)
         if isinstance(one, torch.optim.Optimizer):
-            for p, q in zip([p for g in one.param_groups for p in g["params"]],
-                            [q for g in many.param_groups for q in g["params"]]):
+            for p, q in zip(
+                [p for g in one.param_groups for p in g["params"]],
+                [q for g in many.param_groups for q in g["params"]],
+            ):
                 for moment in ("exp_avg", "exp_avg_sq"):
-                    assert torch.equal(one.state[p][moment],
-                                       many.state[q][moment][:p.shape[0]]), name
+                    assert torch.equal(one.state[p][moment], many.state[q][moment][: p.shape[0]]), (
+                        name
+                    )
         else:  # members first; the critics stack two per member
             for p, q in zip(one.parameters(), many.parameters()):
-                assert torch.equal(p, q[:p.shape[0]]), name
+                assert torch.equal(p, q[: p.shape[0]]), name
 
 
 def test_a_batch_checkpoint_from_before_the_two_adam_groups_says_how_to_start_over():

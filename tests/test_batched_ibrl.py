@@ -14,8 +14,14 @@ from baselines.sac_twin_q import TwinQSACAgent
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import (MOUNTAINCAR, TINY, assert_batch_policies_agree,
-                           assert_batch_updates_agree, batch_curves, curve_signature)
+from tests.helpers import (
+    MOUNTAINCAR,
+    TINY,
+    assert_batch_policies_agree,
+    assert_batch_updates_agree,
+    batch_curves,
+    curve_signature,
+)
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT, dtype=np.float32), np.ones(ACT, dtype=np.float32)
@@ -28,15 +34,16 @@ def _demos():
 def _pair(imitation: str):
     """A batch of 3 and the one-run agents of its seeds, with their imitation policies."""
     demos = _demos()
-    config = IBRLConfig(hidden_sizes=(32, 32), batch_size=ROWS, imitation=imitation,
-                        bc_steps=50)
+    config = IBRLConfig(hidden_sizes=(32, 32), batch_size=ROWS, imitation=imitation, bc_steps=50)
     mus = [ImitationPolicy(config, demos, LOW, HIGH, s) for s in SEEDS]
-    singles = [IBRLAgent(OBS, ACT, LOW, HIGH, config, s, mu, cuda_graphs=False)
-               for s, mu in zip(SEEDS, mus)]
-    members = [TwinQSACAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False)
-               for s in SEEDS]
-    stacked = StackedIBRLAgent(members, config, mus[:1] if imitation == "functional" else mus,
-                               demos, "cpu")
+    singles = [
+        IBRLAgent(OBS, ACT, LOW, HIGH, config, s, mu, cuda_graphs=False)
+        for s, mu in zip(SEEDS, mus)
+    ]
+    members = [TwinQSACAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS]
+    stacked = StackedIBRLAgent(
+        members, config, mus[:1] if imitation == "functional" else mus, demos, "cpu"
+    )
     return demos, config, stacked, singles
 
 
@@ -64,11 +71,13 @@ def test_each_members_replay_starts_with_the_demonstrations():
     assert stacked.buffer.size == n + 5 and stacked.buffer.capacity == n + CAPACITY
     stored = stacked.buffer.split(stacked.buffer.data[:, :n])
     for k in range(len(SEEDS)):
-        np.testing.assert_array_equal(stored.observations[k].numpy(),
-                                      np.asarray(demos.observations, dtype=np.float32))
+        np.testing.assert_array_equal(
+            stored.observations[k].numpy(), np.asarray(demos.observations, dtype=np.float32)
+        )
         for name in ("actions", "rewards", "next_observations", "terminated"):
-            np.testing.assert_array_equal(getattr(stored, name)[k].numpy(),
-                                          np.asarray(getattr(demos, name), dtype=np.float32))
+            np.testing.assert_array_equal(
+                getattr(stored, name)[k].numpy(), np.asarray(getattr(demos, name), dtype=np.float32)
+            )
 
 
 @pytest.mark.parametrize("imitation", ["functional", "bc"])
@@ -84,8 +93,7 @@ def test_batched_ibrl_proposals_equal_one_run_proposals(imitation):
     imitated_any = []
     for deterministic in (False, True, False):
         for _ in range(8):
-            obs = rng.uniform([-1.2, -0.07], [0.6, 0.07], size=(len(SEEDS), OBS)
-                              ).astype(np.float32)
+            obs = rng.uniform([-1.2, -0.07], [0.6, 0.07], size=(len(SEEDS), OBS)).astype(np.float32)
             actions, imitated = stacked.propose(obs, deterministic)
             for k, agent in enumerate(singles):
                 one_action, one_imitated = agent.propose(obs[k], deterministic)
@@ -100,7 +108,8 @@ def test_a_tie_between_the_proposals_goes_to_the_actor():
     as the winner (IBRL takes the imitation action only when its value is higher)."""
     _, _, stacked, _ = _pair("functional")
     stacked.imitation_actions = lambda states: stacked.policy.deterministic(
-        torch.from_numpy(states.astype(np.float32))).numpy()
+        torch.from_numpy(states.astype(np.float32))
+    ).numpy()
     obs = np.random.default_rng(2).uniform([-1.2, -0.07], [0.6, 0.07], size=(len(SEEDS), OBS))
     _, imitated = stacked.propose(obs.astype(np.float32), deterministic=True)
     assert not imitated.any()
@@ -116,10 +125,12 @@ def test_batched_ibrl_updates_equal_one_run_updates(imitation):
     assert_batch_updates_agree(stacked, singles, buffers, ROWS, SEEDS, updates=6)
     assert_batch_policies_agree(stacked, singles)
     for k, agent in enumerate(singles):
-        for mine, theirs in ((stacked.critics, agent.critics),
-                             (stacked.critics_target, agent.critics_target)):
+        for mine, theirs in (
+            (stacked.critics, agent.critics),
+            (stacked.critics_target, agent.critics_target),
+        ):
             for value, reference in zip(mine.parameters(), theirs.parameters()):
-                assert torch.allclose(value[2 * k:2 * k + 2], reference, atol=1e-5)
+                assert torch.allclose(value[2 * k : 2 * k + 2], reference, atol=1e-5)
         assert torch.allclose(stacked.log_alpha[k], agent.log_alpha[0], atol=1e-6)
 
 
@@ -144,8 +155,7 @@ def test_the_target_bootstraps_from_the_higher_valued_proposal():
 
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
-    return [RunSpec("ibrl", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper})
-            for seed in seeds]
+    return [RunSpec("ibrl", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper}) for seed in seeds]
 
 
 def test_a_batched_ibrl_run_lands_on_its_one_run_curve(tmp_path):
@@ -156,8 +166,9 @@ def test_a_batched_ibrl_run_lands_on_its_one_run_curve(tmp_path):
     alone = execute(prepare(_specs(seeds=(1,))[0]), tmp_path / "alone", device="cpu")
     assert not batch.failed and batch.runs[1].path.name == alone.path.name
     for column in ("return_mean", "guided_fraction"):
-        np.testing.assert_allclose(batch.runs[1].curve[column], alone.curve[column],
-                                   rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(
+            batch.runs[1].curve[column], alone.curve[column], rtol=1e-4, atol=1e-3
+        )
     assert batch.runs[0].curve["returns"].tolist() != batch.runs[1].curve["returns"].tolist()
 
 

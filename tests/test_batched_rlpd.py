@@ -13,8 +13,13 @@ from baselines.rlpd import RLPDAgent, RLPDConfig, SymmetricReplay
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
-from tests.helpers import (MOUNTAINCAR, TINY, assert_batch_policies_agree,
-                           assert_batch_updates_agree, batch_curves)
+from tests.helpers import (
+    MOUNTAINCAR,
+    TINY,
+    assert_batch_policies_agree,
+    assert_batch_updates_agree,
+    batch_curves,
+)
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
 LOW, HIGH = -np.ones(ACT), np.ones(ACT)
@@ -25,16 +30,25 @@ def _demos():
 
 
 def _transitions(rng: np.random.Generator, n: int):
-    return (rng.normal(size=(n, OBS)).astype(np.float32),
-            rng.uniform(-1, 1, size=(n, ACT)).astype(np.float32),
-            rng.normal(size=n).astype(np.float32), rng.normal(size=(n, OBS)).astype(np.float32),
-            rng.random(n) < 0.1)
+    return (
+        rng.normal(size=(n, OBS)).astype(np.float32),
+        rng.uniform(-1, 1, size=(n, ACT)).astype(np.float32),
+        rng.normal(size=n).astype(np.float32),
+        rng.normal(size=(n, OBS)).astype(np.float32),
+        rng.random(n) < 0.1,
+    )
 
 
 def _filled(demos, steps: int = 60):
     """The stacked replay and each member's one-run replay, holding the same transitions."""
-    stacked = StackedSymmetricReplay(preloaded_buffer(demos, OBS, ACT, online_capacity=0),
-                                     len(SEEDS), OBS, ACT, CAPACITY, torch.device("cpu"))
+    stacked = StackedSymmetricReplay(
+        preloaded_buffer(demos, OBS, ACT, online_capacity=0),
+        len(SEEDS),
+        OBS,
+        ACT,
+        CAPACITY,
+        torch.device("cpu"),
+    )
     singles = [SymmetricReplay(demos, OBS, ACT, CAPACITY) for _ in SEEDS]
     rng = np.random.default_rng(3)
     for _ in range(steps):
@@ -53,7 +67,7 @@ def test_stacked_symmetric_sample_draws_each_members_one_run_rows():
         for name in ("observations", "actions", "rewards", "next_observations", "terminated"):
             assert torch.equal(getattr(batch, name)[k], getattr(one, name)), name
     demo_obs = torch.from_numpy(np.asarray(_demos().observations, dtype=np.float32))
-    first_half = batch.observations[:, :ROWS // 2]  # the demonstration half comes first
+    first_half = batch.observations[:, : ROWS // 2]  # the demonstration half comes first
     assert all(bool((demo_obs == row).all(-1).any()) for row in first_half.reshape(-1, OBS))
 
 
@@ -67,15 +81,20 @@ def test_batched_rlpd_updates_equal_one_run_updates(utd):
     singles = [RLPDAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS]
     stacked = StackedRLPDAgent(
         [RLPDAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS],
-        config, preloaded_buffer(demos, OBS, ACT, online_capacity=0), "cpu")
+        config,
+        preloaded_buffer(demos, OBS, ACT, online_capacity=0),
+        "cpu",
+    )
     stacked.buffer, buffers = _filled(demos)
     assert_batch_updates_agree(stacked, singles, buffers, ROWS, SEEDS, updates=6)
     assert stacked.critic_updates == 6
     assert_batch_policies_agree(stacked, singles)
     for k, agent in enumerate(singles):
         rows = slice(k * config.num_qs, (k + 1) * config.num_qs)
-        for mine, theirs in ((stacked.critics, agent.critics),
-                             (stacked.critics_target, agent.critics_target)):
+        for mine, theirs in (
+            (stacked.critics, agent.critics),
+            (stacked.critics_target, agent.critics_target),
+        ):
             named = dict(theirs.named_parameters())  # the target's LayerNorm too
             assert len(named) == len(list(mine.parameters()))
             for name, value in mine.named_parameters():
@@ -84,8 +103,7 @@ def test_batched_rlpd_updates_equal_one_run_updates(utd):
 
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
-    return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper})
-            for seed in seeds]
+    return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper}) for seed in seeds]
 
 
 def test_a_batched_rlpd_run_lands_on_its_one_run_curve(tmp_path):
@@ -94,8 +112,9 @@ def test_a_batched_rlpd_run_lands_on_its_one_run_curve(tmp_path):
     batch = execute_batch([prepare(s) for s in _specs()], tmp_path / "batch", device="cpu")
     alone = execute(prepare(_specs(seeds=(1,))[0]), tmp_path / "alone", device="cpu")
     assert not batch.failed and batch.runs[1].path.name == alone.path.name
-    np.testing.assert_allclose(batch.runs[1].curve["return_mean"],
-                               alone.curve["return_mean"], rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(
+        batch.runs[1].curve["return_mean"], alone.curve["return_mean"], rtol=1e-4, atol=1e-3
+    )
     assert batch.runs[0].curve["returns"].tolist() != batch.runs[1].curve["returns"].tolist()
 
 
@@ -105,8 +124,7 @@ def test_an_interrupted_rlpd_batch_resumes_onto_the_uninterrupted_curves(tmp_pat
     batch_curves("rlpd", config, tmp_path / "cut.pt", stop_at=250)
     resumed = batch_curves("rlpd", config, tmp_path / "cut.pt")
     for k in (0, 1):
-        assert [(p.step, p.returns) for p in resumed[k]] == \
-            [(p.step, p.returns) for p in whole[k]]
+        assert [(p.step, p.returns) for p in resumed[k]] == [(p.step, p.returns) for p in whole[k]]
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

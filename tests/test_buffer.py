@@ -6,8 +6,13 @@ from baselines.common.buffer import ReplayBuffer
 
 def fill(buffer, n, start=0):
     for i in range(start, start + n):
-        buffer.add(np.full(2, i, np.float32), np.full(1, -i, np.float32), float(i),
-                   np.full(2, i + 1, np.float32), terminated=(i % 3 == 0))
+        buffer.add(
+            np.full(2, i, np.float32),
+            np.full(1, -i, np.float32),
+            float(i),
+            np.full(2, i + 1, np.float32),
+            terminated=(i % 3 == 0),
+        )
 
 
 def test_add_and_sample_keep_transitions_together():

@@ -27,27 +27,33 @@ def _stop_after(calls: int):
         seen[0] += 1
         if seen[0] == calls:
             raise _Stop
+
     return on_steps
 
 
 def _curves(store):
     """Each finished run's curve without its wall-time column."""
-    return {p.name: [line.rsplit(",", 1)[0] for line in (p / "curve.csv").read_text().splitlines()]
-            for p in sorted(store.iterdir()) if (p / "provenance.json").is_file()}
+    return {
+        p.name: [line.rsplit(",", 1)[0] for line in (p / "curve.csv").read_text().splitlines()]
+        for p in sorted(store.iterdir())
+        if (p / "provenance.json").is_file()
+    }
 
 
 def _batch_specs():
     return [prepare(RunSpec("drl-eg", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in (0, 1)]
 
 
-def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(tmp_path,
-                                                                            monkeypatch):
+def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(
+    tmp_path, monkeypatch
+):
     whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
     execute_batch(_batch_specs(), whole, device="cpu", checkpoint_interval=200)
 
     with pytest.raises(_Stop):  # stopped at step 500, after the checkpoint at 400
-        execute_batch(_batch_specs(), first, device="cpu", checkpoint_interval=200,
-                      on_steps=_stop_after(500))
+        execute_batch(
+            _batch_specs(), first, device="cpu", checkpoint_interval=200, on_steps=_stop_after(500)
+        )
     (checkpoint,) = first.glob(".batch-*/checkpoint.pt")
     packed, skipped = carry.pack_all(first)
     assert skipped == [] and [p.step for p in packed] == [400] and packed[0].members == 2
@@ -80,8 +86,9 @@ def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
     whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
     execute(prepare(spec), whole, device="cpu", checkpoint_interval=150)
     with pytest.raises(_Stop):
-        execute(prepare(spec), first, device="cpu", checkpoint_interval=150,
-                on_steps=_stop_after(600))
+        execute(
+            prepare(spec), first, device="cpu", checkpoint_interval=150, on_steps=_stop_after(600)
+        )
     assert main(["carry", "--store", str(first)]) == 0
     (manifest,) = carry.listing(first)
     assert manifest["kind"] == "run" and 150 <= manifest["step"] < 600
@@ -94,8 +101,13 @@ def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
 def test_a_carried_replay_that_does_not_rebuild_is_refused_and_kept(tmp_path, monkeypatch):
     spec = RunSpec("sac", HOPPER, 4, 500, 250, 1, dict(TINY))
     with pytest.raises(_Stop):
-        execute(prepare(spec), tmp_path, device="cpu", checkpoint_interval=100,
-                on_steps=_stop_after(400))
+        execute(
+            prepare(spec),
+            tmp_path,
+            device="cpu",
+            checkpoint_interval=100,
+            on_steps=_stop_after(400),
+        )
     (packed,), _ = carry.pack_all(tmp_path)
     shutil.rmtree(tmp_path / f".partial-{packed.name}")
     manifest_path = carry.carry_root(tmp_path) / packed.name / carry.MANIFEST_FILE
@@ -113,10 +125,17 @@ def test_a_carried_replay_that_does_not_rebuild_is_refused_and_kept(tmp_path, mo
 def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
     spec = RunSpec("sac", HOPPER, 5, 500, 250, 1, {**TINY, "buffer_size": 150})
     with pytest.raises(_Stop):
-        execute(prepare(spec), tmp_path, device="cpu", checkpoint_interval=100,
-                on_steps=_stop_after(400))
-    assert torch.load(next(tmp_path.glob(".partial-*/checkpoint.pt")),
-                      weights_only=False)["step"] > 150
+        execute(
+            prepare(spec),
+            tmp_path,
+            device="cpu",
+            checkpoint_interval=100,
+            on_steps=_stop_after(400),
+        )
+    assert (
+        torch.load(next(tmp_path.glob(".partial-*/checkpoint.pt")), weights_only=False)["step"]
+        > 150
+    )
     assert main(["carry", "--store", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "not carried" in out and "wrapped around" in out
@@ -130,8 +149,9 @@ def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_
     entry = carry.carry_root(tmp_path) / "batch-x"
     entry.mkdir(parents=True)
     members = [runs[3].run_id, runs[1].run_id]
-    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
-        {"format": carry.FORMAT, "kind": "batch", "name": "batch-x", "members": members}))
+    (entry / carry.MANIFEST_FILE).write_text(
+        json.dumps({"format": carry.FORMAT, "kind": "batch", "name": "batch-x", "members": members})
+    )
     for batch in (None, 1, 3):
         tasks = plan_batches(runs, batch, tmp_path)
         assert [p.run_id for p in tasks[0]] == members
@@ -147,15 +167,25 @@ def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, ca
     whole = estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1)
     entry = carry.carry_root(tmp_path) / "batch-z"
     entry.mkdir(parents=True)
-    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
-        {"format": carry.FORMAT, "kind": "batch", "name": "batch-z", "step": 4500,
-         "members": [runs[0].run_id, runs[1].run_id], "packed_utc": "then", "cpu_model": "x"}))
+    (entry / carry.MANIFEST_FILE).write_text(
+        json.dumps(
+            {
+                "format": carry.FORMAT,
+                "kind": "batch",
+                "name": "batch-z",
+                "step": 4500,
+                "members": [runs[0].run_id, runs[1].run_id],
+                "packed_utc": "then",
+                "cpu_model": "x",
+            }
+        )
+    )
     # the batch has 1,500 of its 6,000 steps per member left; the third run all 6,000
     assert estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1) == pytest.approx(
-        whole * (2 * 1500 + 6000) / 18000)
+        whole * (2 * 1500 + 6000) / 18000
+    )
     # a carry resumes only whole, and on Ray a carried batch starts over
-    assert estimate_minutes([runs[0], runs[2]], tmp_path, workers=1) == pytest.approx(
-        whole * 2 / 3)
+    assert estimate_minutes([runs[0], runs[2]], tmp_path, workers=1) == pytest.approx(whole * 2 / 3)
     assert estimate_minutes(runs, tmp_path, workers=1, carried_batches=False) == whole
     print_plan(runs, runs, tmp_path, workers=1)
     out = capsys.readouterr().out
@@ -169,9 +199,17 @@ def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
     specs = [RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY)) for seed in (0, 1)]
     entry = carry.carry_root(tmp_path) / "batch-y"
     entry.mkdir(parents=True)
-    (entry / carry.MANIFEST_FILE).write_text(json.dumps(
-        {"format": carry.FORMAT, "kind": "batch", "name": "batch-y", "step": 1234,
-         "members": [prepare(specs[1]).run_id]}))
+    (entry / carry.MANIFEST_FILE).write_text(
+        json.dumps(
+            {
+                "format": carry.FORMAT,
+                "kind": "batch",
+                "name": "batch-y",
+                "step": 1234,
+                "members": [prepare(specs[1]).run_id],
+            }
+        )
+    )
     ((env_id, algo, why),) = absent_cells(specs, "nox -s x", tmp_path)
     assert (env_id, algo) == (HOPPER, "sac")
     assert "seeds 0, 1 not in the store yet" in why and "seed 1 at step 1,234" in why
@@ -182,12 +220,14 @@ def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives
     spec = RunSpec("sac", HOPPER, 6, 700, 350, 1, dict(TINY))
     first, second = tmp_path / "first", tmp_path / "second"
     with pytest.raises(_Stop):
-        execute(prepare(spec), first, device="cpu", checkpoint_interval=100,
-                on_steps=_stop_after(250))
+        execute(
+            prepare(spec), first, device="cpu", checkpoint_interval=100, on_steps=_stop_after(250)
+        )
     shutil.copytree(first, second)  # the same store on two machines
     with pytest.raises(_Stop):  # one trains on and packs again, further on
-        execute(prepare(spec), second, device="cpu", checkpoint_interval=100,
-                on_steps=_stop_after(300))
+        execute(
+            prepare(spec), second, device="cpu", checkpoint_interval=100, on_steps=_stop_after(300)
+        )
     (packed,), _ = carry.pack_all(second)
     local = first / f".partial-{packed.name}" / carry.CHECKPOINT_FILE
     assert torch.load(local, weights_only=False)["step"] < packed.step
@@ -206,8 +246,13 @@ def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives
 def test_carry_packs_several_checkpoints_on_several_workers(tmp_path, capsys):
     for seed in (7, 8):
         with pytest.raises(_Stop):
-            execute(prepare(RunSpec("sac", HOPPER, seed, 500, 250, 1, dict(TINY))), tmp_path,
-                    device="cpu", checkpoint_interval=100, on_steps=_stop_after(300))
+            execute(
+                prepare(RunSpec("sac", HOPPER, seed, 500, 250, 1, dict(TINY))),
+                tmp_path,
+                device="cpu",
+                checkpoint_interval=100,
+                on_steps=_stop_after(300),
+            )
     assert main(["carry", "--store", str(tmp_path), "--workers", "0"]) == 2
     assert "--workers must be at least 1" in capsys.readouterr().err
     assert main(["carry", "--store", str(tmp_path), "--workers", "2"]) == 0
@@ -218,8 +263,16 @@ def test_a_kill_mid_swap_leaves_the_last_carried_version_found(tmp_path):
     root = carry.carry_root(tmp_path)
     for name in (".run-a.old", ".run-b.packing"):  # the swap's two sides, as a kill leaves them
         (root / name).mkdir(parents=True)
-        (root / name / carry.MANIFEST_FILE).write_text(json.dumps(
-            {"format": carry.FORMAT, "kind": "run", "name": name[1:6], "step": 1,
-             "members": [name[1:6]]}))
+        (root / name / carry.MANIFEST_FILE).write_text(
+            json.dumps(
+                {
+                    "format": carry.FORMAT,
+                    "kind": "run",
+                    "name": name[1:6],
+                    "step": 1,
+                    "members": [name[1:6]],
+                }
+            )
+        )
     assert [m["name"] for m in carry.listing(tmp_path)] == ["run-a"]  # put back; b unfinished
     assert carry.carried(tmp_path, "run-a") is not None and carry.carried(tmp_path, "run-b") is None

@@ -5,9 +5,23 @@ differences where seeds are shared, and what would decide an open check."""
 import numpy as np
 import pytest
 
-from replicate.claims import (ANT, CHEETAH, HOPPER, MOUNTAINCAR, WALKER, Check, Group, claim_1,
-                              claim_2, claim_3, claim_4, claim_5, decide, instability,
-                              judge_claims)
+from replicate.claims import (
+    ANT,
+    CHEETAH,
+    HOPPER,
+    MOUNTAINCAR,
+    WALKER,
+    Check,
+    Group,
+    claim_1,
+    claim_2,
+    claim_3,
+    claim_4,
+    claim_5,
+    decide,
+    instability,
+    judge_claims,
+)
 from replicate.stats import t_mean
 
 DEMOS = {MOUNTAINCAR: 93.0, HOPPER: 3000.0, CHEETAH: 7000.0, WALKER: 4000.0, ANT: 4000.0}
@@ -17,8 +31,15 @@ def group(env_id, algo, finals, curves=None, steps=None):
     finals = np.asarray(finals, dtype=float)
     if curves is None:
         curves = np.linspace(0, 1, 5)[None, :] * finals[:, None]  # steady climbs
-    return Group(env_id, algo, list(range(len(finals))), finals, np.asarray(curves, float),
-                 steps, {"cpu": 100.0})
+    return Group(
+        env_id,
+        algo,
+        list(range(len(finals))),
+        finals,
+        np.asarray(curves, float),
+        steps,
+        {"cpu": 100.0},
+    )
 
 
 def test_instability_hand_computed():
@@ -28,9 +49,11 @@ def test_instability_hand_computed():
 
 
 def test_claim_1_is_partly_reproduced_when_only_a_secondary_check_fails():
-    groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94, 96, 93]),
-              (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0, -0.1, 0]),
-              (MOUNTAINCAR, "ppo"): group(MOUNTAINCAR, "ppo", [1, -2, 0, 0.5])}
+    groups = {
+        (MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94, 96, 93]),
+        (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0, -0.1, 0]),
+        (MOUNTAINCAR, "ppo"): group(MOUNTAINCAR, "ppo", [1, -2, 0, 0.5]),
+    }
     claim = claim_1(groups, DEMOS)
     assert claim["verdict"] == "reproduced"
     assert claim["parts"][0]["role"] == "primary"
@@ -42,9 +65,11 @@ def test_claim_1_is_partly_reproduced_when_only_a_secondary_check_fails():
 
 
 def test_a_negligible_difference_is_equivalent_not_better_or_worse():
-    groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94, 96, 93, 94]),
-              (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0, 0, 0, 0]),
-              (MOUNTAINCAR, "ppo-bc"): group(MOUNTAINCAR, "ppo-bc", [96, 95, 97, 94, 95])}
+    groups = {
+        (MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94, 96, 93, 94]),
+        (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0, 0, 0, 0]),
+        (MOUNTAINCAR, "ppo-bc"): group(MOUNTAINCAR, "ppo-bc", [96, 95, 97, 94, 95]),
+    }
     claim = claim_1(groups, DEMOS)
     below = [p for p in claim["parts"] if p["what"].startswith("PPO+BC ends below")][0]
     assert below["verdict"] == "equivalent"  # -1 against a smallest effect of 9.3
@@ -74,10 +99,13 @@ def test_claim_2_equivalence_is_paired():
 
 def test_claim_3_demonstration_target_is_not_testable_where_no_published_sac_reaches_it():
     steps = np.arange(0, 200_001, 50_000)
-    groups = {(e, "drl-eg"): group(e, "drl-eg", [3800, 3900, 3850, 3950], steps=steps)
-              for e in (WALKER, ANT)}
-    groups.update({(e, "sac"): group(e, "sac", [2000, 2500, 2200, 2100], steps=steps)
-                   for e in (WALKER, ANT)})
+    groups = {
+        (e, "drl-eg"): group(e, "drl-eg", [3800, 3900, 3850, 3950], steps=steps)
+        for e in (WALKER, ANT)
+    }
+    groups.update(
+        {(e, "sac"): group(e, "sac", [2000, 2500, 2200, 2100], steps=steps) for e in (WALKER, ANT)}
+    )
     assert claim_3(groups, {})["verdict"].startswith("not judged")
     claim = claim_3(groups, {WALKER: 4000, ANT: 8000})
     assert claim["verdict"] == "reproduced"
@@ -89,26 +117,35 @@ def test_claim_3_demonstration_target_is_not_testable_where_no_published_sac_rea
 def test_claim_4_compares_instability_paired():
     wobbly = np.array([[0, 100, 10, 100, 20], [0, 90, 5, 95, 30], [0, 80, 0, 90, 10]], float)
     steady = np.array([[0, 20, 40, 60, 80], [0, 25, 45, 70, 85], [0, 15, 35, 55, 75]], float)
-    groups = {(ANT, "drl-eg"): group(ANT, "drl-eg", steady[:, -1], steady),
-              (ANT, "sac"): group(ANT, "sac", wobbly[:, -1], wobbly),
-              (ANT, "ddpgfd"): group(ANT, "ddpgfd", wobbly[:, -1], wobbly)}
+    groups = {
+        (ANT, "drl-eg"): group(ANT, "drl-eg", steady[:, -1], steady),
+        (ANT, "sac"): group(ANT, "sac", wobbly[:, -1], wobbly),
+        (ANT, "ddpgfd"): group(ANT, "ddpgfd", wobbly[:, -1], wobbly),
+    }
     assert claim_4(groups, DEMOS)["verdict"] == "reproduced"
-    swapped = {(ANT, "drl-eg"): groups[(ANT, "sac")], (ANT, "sac"): groups[(ANT, "drl-eg")],
-               (ANT, "ddpgfd"): groups[(ANT, "drl-eg")]}
+    swapped = {
+        (ANT, "drl-eg"): groups[(ANT, "sac")],
+        (ANT, "sac"): groups[(ANT, "drl-eg")],
+        (ANT, "ddpgfd"): groups[(ANT, "drl-eg")],
+    }
     assert claim_4(swapped, DEMOS)["verdict"] == "not reproduced"
 
 
 def test_claim_5_needs_a_stuck_sac_seed():
-    stuck = {(ANT, "drl-eg"): group(ANT, "drl-eg", [3000, 3100, 2900, 3050]),
-             (ANT, "sac"): group(ANT, "sac", [900, 2800, 2700, 2950])}
+    stuck = {
+        (ANT, "drl-eg"): group(ANT, "drl-eg", [3000, 3100, 2900, 3050]),
+        (ANT, "sac"): group(ANT, "sac", [900, 2800, 2700, 2950]),
+    }
     claim = claim_5(stuck, DEMOS)
     assert claim["verdict"] == "reproduced"
     assert claim["parts"][0]["seeds_meeting"] == 1  # seed 0: SAC stuck, DRL-EG escaped
     kept = dict(stuck)
     kept[(ANT, "drl-eg")] = group(ANT, "drl-eg", [1000, 3100, 2900, 3050])
     assert claim_5(kept, DEMOS)["verdict"] == "not reproduced"  # stuck, and DRL-EG stays
-    none_stuck = {(ANT, "drl-eg"): group(ANT, "drl-eg", [3000, 3100, 2900, 3050]),
-                  (ANT, "sac"): group(ANT, "sac", [2900, 2800, 2700, 2950])}
+    none_stuck = {
+        (ANT, "drl-eg"): group(ANT, "drl-eg", [3000, 3100, 2900, 3050]),
+        (ANT, "sac"): group(ANT, "sac", [2900, 2800, 2700, 2950]),
+    }
     claim = claim_5(none_stuck, DEMOS)
     assert claim["verdict"] == "not testable at this budget"
     assert "no SAC seed is stuck" in claim["parts"][0]["decide"]
@@ -130,8 +167,10 @@ def test_missing_runs_smoke_and_profiles_that_do_not_judge_mujoco():
     ledger = judge_claims({}, {}, meaningful=True, fig4_groups={})
     assert [c["id"] for c in ledger] == [1, 2, 3, 4, 5]
     assert all(c["verdict"].startswith("not judged: no runs of") for c in ledger)
-    groups = {(MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94]),
-              (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0])}
+    groups = {
+        (MOUNTAINCAR, "drl-eg"): group(MOUNTAINCAR, "drl-eg", [95, 94]),
+        (MOUNTAINCAR, "sac"): group(MOUNTAINCAR, "sac", [0, 0]),
+    }
     smoke = judge_claims(groups, {}, meaningful=False)
     assert smoke[0]["verdict"] == "not judged (smoke profile: numbers mean nothing)"
     quick = judge_claims(groups, DEMOS, meaningful=True, judged_envs={MOUNTAINCAR})
@@ -151,5 +190,7 @@ def test_a_checks_interval_does_not_move_when_runs_for_another_check_arrive():
     assert len(after) == len(before) + 2
     by_label = {p["what"]: p for p in after}
     for part in before:
-        assert (by_label[part["what"]]["low"], by_label[part["what"]]["high"]) == \
-            (part["low"], part["high"])
+        assert (by_label[part["what"]]["low"], by_label[part["what"]]["high"]) == (
+            part["low"],
+            part["high"],
+        )

@@ -10,8 +10,14 @@ from replicate.cli import main
 from replicate.demos import default_demo_path
 
 MC = "MountainCarContinuous-v0"
-TINY_SET = ["--set", "hidden_sizes=(16,16)", "--set", "batch_size=16",
-            "--set", "learning_starts=50"]
+TINY_SET = [
+    "--set",
+    "hidden_sizes=(16,16)",
+    "--set",
+    "batch_size=16",
+    "--set",
+    "learning_starts=50",
+]
 
 
 def run_cli(args, capsys):
@@ -32,13 +38,18 @@ def store_entries(store):
     return sorted(p.name for p in store.iterdir()) if store.exists() else []
 
 
-@pytest.mark.parametrize("args, fragments", [
-    (["--algo", "sac", "--env", "Hopper-v2", "--steps", "10"], ["unknown env", "Hopper-v5"]),
-    (["--algo", "ddpg", "--env", MC, "--steps", "10"], ["unknown algorithm", "drl-eg", "sac"]),
-    (["--algo", "sac", "--env", MC, "--steps", "-5"], ["step count must be positive"]),
-    (["--algo", "sac", "--env", MC, "--steps", "10", "--set", "gamma_typo=0.9"],
-     ["unknown hyperparameter", "gamma_typo"]),
-])
+@pytest.mark.parametrize(
+    "args, fragments",
+    [
+        (["--algo", "sac", "--env", "Hopper-v2", "--steps", "10"], ["unknown env", "Hopper-v5"]),
+        (["--algo", "ddpg", "--env", MC, "--steps", "10"], ["unknown algorithm", "drl-eg", "sac"]),
+        (["--algo", "sac", "--env", MC, "--steps", "-5"], ["step count must be positive"]),
+        (
+            ["--algo", "sac", "--env", MC, "--steps", "10", "--set", "gamma_typo=0.9"],
+            ["unknown hyperparameter", "gamma_typo"],
+        ),
+    ],
+)
 def test_bad_input_is_one_line_non_zero_and_leaves_nothing(tmp_path, capsys, args, fragments):
     store = tmp_path / "store"
     code, _, err = run_cli(["train", *args, "--store", str(store)], capsys)
@@ -50,8 +61,22 @@ def test_malformed_and_mismatched_demonstrations_are_refused(tmp_path, capsys):
     store = tmp_path / "store"
     broken = tmp_path / "broken.npz"
     broken.write_bytes(b"not a zip file at all")
-    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
-                            "--demos", str(broken), "--store", str(store)], capsys)
+    code, _, err = run_cli(
+        [
+            "train",
+            "--algo",
+            "drl-eg",
+            "--env",
+            MC,
+            "--steps",
+            "10",
+            "--demos",
+            str(broken),
+            "--store",
+            str(store),
+        ],
+        capsys,
+    )
     assert_one_line_error(code, err, "malformed or truncated")
 
     wrong_dims = tmp_path / "wrong.npz"
@@ -60,20 +85,64 @@ def test_malformed_and_mismatched_demonstrations_are_refused(tmp_path, capsys):
         arrays = {k: data[k] for k in data.files}
     arrays["actions"] = np.concatenate([arrays["actions"], arrays["actions"]], axis=1)
     np.savez(wrong_dims, **arrays)
-    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
-                            "--demos", str(wrong_dims), "--store", str(store)], capsys)
+    code, _, err = run_cli(
+        [
+            "train",
+            "--algo",
+            "drl-eg",
+            "--env",
+            MC,
+            "--steps",
+            "10",
+            "--demos",
+            str(wrong_dims),
+            "--store",
+            str(store),
+        ],
+        capsys,
+    )
     assert_one_line_error(code, err, "dims 2/2", "2/1")
 
-    code, _, err = run_cli(["train", "--algo", "drl-eg", "--env", MC, "--steps", "10",
-                            "--demos", str(tmp_path / "absent.npz"), "--store", str(store)], capsys)
+    code, _, err = run_cli(
+        [
+            "train",
+            "--algo",
+            "drl-eg",
+            "--env",
+            MC,
+            "--steps",
+            "10",
+            "--demos",
+            str(tmp_path / "absent.npz"),
+            "--store",
+            str(store),
+        ],
+        capsys,
+    )
     assert_one_line_error(code, err, "not found")
     assert store_entries(store) == []
 
 
 def test_train_writes_a_complete_run_directory_and_skips_it_the_second_time(tmp_path, capsys):
     store = tmp_path / "store"
-    args = ["train", "--algo", "drl-eg", "--env", MC, "--steps", "120", "--seed", "2",
-            "--eval-interval", "60", "--eval-episodes", "1", *TINY_SET, "--store", str(store)]
+    args = [
+        "train",
+        "--algo",
+        "drl-eg",
+        "--env",
+        MC,
+        "--steps",
+        "120",
+        "--seed",
+        "2",
+        "--eval-interval",
+        "60",
+        "--eval-episodes",
+        "1",
+        *TINY_SET,
+        "--store",
+        str(store),
+    ]
     code, out, _ = run_cli(args, capsys)
     assert code == 0
     (run_dir,) = [p for p in store.iterdir()]
@@ -107,10 +176,23 @@ def test_a_crashing_run_leaves_no_directory(tmp_path, capsys, monkeypatch):
 
 
 def test_help_explains_every_option():
-    result = subprocess.run([sys.executable, "-m", "replicate", "train", "--help"],
-                            capture_output=True, text=True, check=True)
-    for option in ("--algo", "--env", "--steps", "--seed", "--eval-interval", "--eval-episodes",
-                   "--demos", "--set", "--store"):
+    result = subprocess.run(
+        [sys.executable, "-m", "replicate", "train", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    for option in (
+        "--algo",
+        "--env",
+        "--steps",
+        "--seed",
+        "--eval-interval",
+        "--eval-episodes",
+        "--demos",
+        "--set",
+        "--store",
+    ):
         assert option in result.stdout
     assert "environment steps" in result.stdout
 
@@ -133,10 +215,11 @@ def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeyp
     assert str(default_store("smoke")) == "/elsewhere"
 
 
-@pytest.mark.parametrize("command", ["fig3", "fig4", "ablate-threshold", "compare-rlfd",
-                                     "report", "train", "expert", "carry"])
-def test_help_describes_every_profile_and_states_each_default_once(command, capsys,
-                                                                   monkeypatch):
+@pytest.mark.parametrize(
+    "command",
+    ["fig3", "fig4", "ablate-threshold", "compare-rlfd", "report", "train", "expert", "carry"],
+)
+def test_help_describes_every_profile_and_states_each_default_once(command, capsys, monkeypatch):
     from replicate.profiles import PROFILES
 
     monkeypatch.setenv("COLUMNS", "100")

@@ -20,8 +20,11 @@ PREDATE_THE_STORE: set[str] = set()
 
 
 def _committed() -> list[Path]:
-    return sorted(p.parent for p in (ROOT / "reports").rglob("summary.json")
-                  if "smoke" not in p.parts and "bench" not in p.parts)
+    return sorted(
+        p.parent
+        for p in (ROOT / "reports").rglob("summary.json")
+        if "smoke" not in p.parts and "bench" not in p.parts
+    )
 
 
 def test_every_committed_report_has_its_runs_committed_unless_it_predates_the_store():
@@ -36,17 +39,25 @@ def test_every_committed_report_has_its_runs_committed_unless_it_predates_the_st
 
 def test_committed_reports_and_runs_name_no_directory_of_the_machine_that_made_them():
     absolute = re.compile(r"(?<![\w.:/])/(?:work|tmp|home|root|Users|scratch)/")
-    files = [p for p in (ROOT / "reports").rglob("*") if p.suffix in (".html", ".json")
-             and "smoke" not in p.parts and "bench" not in p.parts]  # a bench records its command
+    files = [
+        p
+        for p in (ROOT / "reports").rglob("*")
+        if p.suffix in (".html", ".json") and "smoke" not in p.parts and "bench" not in p.parts
+    ]  # a bench records its command
     files += [p for p in STORE.glob("*/*.json")]
     offending = [p.relative_to(ROOT).as_posix() for p in files if absolute.search(p.read_text())]
     assert not offending, offending
 
 
-@pytest.mark.parametrize("report", [p for p in _committed()
-                                    if p.relative_to(ROOT / "reports").as_posix()
-                                    not in PREDATE_THE_STORE],
-                         ids=lambda p: p.relative_to(ROOT / "reports").as_posix())
+@pytest.mark.parametrize(
+    "report",
+    [
+        p
+        for p in _committed()
+        if p.relative_to(ROOT / "reports").as_posix() not in PREDATE_THE_STORE
+    ],
+    ids=lambda p: p.relative_to(ROOT / "reports").as_posix(),
+)
 def test_a_committed_report_rebuilds_from_the_committed_runs(report, tmp_path):
     committed = json.loads((report / "summary.json").read_text())
     profile = committed["profile"]
@@ -55,8 +66,9 @@ def test_a_committed_report_rebuilds_from_the_committed_runs(report, tmp_path):
     elif "paired" in committed:
         path = rebuild_figure4(profile, committed["env_id"], None, STORE, tmp_path)
     elif "zero_threshold_equals_sac" in committed:
-        path = rebuild_threshold_ablation(profile, STORE, tmp_path,
-                                          committed.get("env_id", ABLATION_ENV))
+        path = rebuild_threshold_ablation(
+            profile, STORE, tmp_path, committed.get("env_id", ABLATION_ENV)
+        )
     else:
         path = rebuild_figure3(profile=profile, store=STORE, out_dir=tmp_path)
     assert path is not None
@@ -76,10 +88,18 @@ def test_summaries_are_strict_json():
 
     from replicate.report import summary_bytes
 
-    written = summary_bytes({"reach": float("nan"), "values": [np.float64(1.5), np.int64(2)],
-                             "ci": (float("inf"), -1.0)})
+    written = summary_bytes(
+        {
+            "reach": float("nan"),
+            "values": [np.float64(1.5), np.int64(2)],
+            "ci": (float("inf"), -1.0),
+        }
+    )
     assert json.loads(written, parse_constant=_no_constants) == {
-        "reach": None, "values": [1.5, 2], "ci": [None, -1.0]}
+        "reach": None,
+        "values": [1.5, 2],
+        "ci": [None, -1.0],
+    }
     for report in _committed():  # what jq and a browser's JSON.parse accept
         json.loads((report / "summary.json").read_text(), parse_constant=_no_constants)
 
@@ -91,13 +111,17 @@ def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
         pytest.skip("the rule is set")
     # the store holds the ablation's 1x runs, whose spec is the spacing rule's: not shown
     summary = json.loads((ROOT / "reports" / "reduced" / "fig3" / "summary.json").read_text())
-    assert not [f for f in summary["final_returns"] if f["algo"] in experiments.T2_ALGORITHMS
-                and f["env_id"] in experiments.MUJOCO_ENVS]
+    assert not [
+        f
+        for f in summary["final_returns"]
+        if f["algo"] in experiments.T2_ALGORITHMS and f["env_id"] in experiments.MUJOCO_ENVS
+    ]
 
 
 def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
     """MUJOCO_T2_RULE stays unset until the committed reduced ablation has every setting on
-    both envs, and is then the setting its written criterion picks (docs/decisions.md: T2 on MuJoCo)."""
+    both envs, and is then the setting its written criterion picks (docs/decisions.md: T2 on
+    MuJoCo)."""
     import numpy as np
 
     from replicate import experiments
@@ -111,7 +135,9 @@ def _quantities(node, found):
     """Every stated quantity (a dict naming its ``quantity`` with an interval) in a summary."""
     if isinstance(node, dict):
         if isinstance(node.get("quantity"), str) and node["quantity"] and "low" in node:
-            found.setdefault(node["quantity"], set()).add((node["value"], node["low"], node["high"]))
+            found.setdefault(node["quantity"], set()).add(
+                (node["value"], node["low"], node["high"])
+            )
         for value in node.values():
             _quantities(value, found)
     elif isinstance(node, list):

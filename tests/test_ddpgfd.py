@@ -3,8 +3,7 @@ import pytest
 import torch
 
 from baselines.common.prioritized import PrioritizedReplayBuffer, SumTree
-from baselines.ddpgfd import (DDPGfDAgent, DDPGfDConfig, n_step_target,
-                              transition_priorities)
+from baselines.ddpgfd import DDPGfDAgent, DDPGfDConfig, n_step_target, transition_priorities
 from tests.helpers import curve_signature, train_tiny
 
 GAMMA = 0.5
@@ -24,17 +23,27 @@ def test_sum_tree_sums_and_finds_by_prefix():
 def filled_buffer(capacity: int = 8) -> PrioritizedReplayBuffer:
     """Two demo transitions (one episode, cut), then agent steps with rewards 1, 2, 3, ..."""
     buffer = PrioritizedReplayBuffer(obs_dim=1, act_dim=1, capacity=capacity, alpha=1.0)
-    buffer.add_demonstrations(observations=np.array([[10.0], [11.0]]), actions=np.zeros((2, 1)),
-                              rewards=np.array([10.0, 20.0]),
-                              next_observations=np.array([[11.0], [12.0]]),
-                              terminated=np.zeros(2), episode_end=np.zeros(2, dtype=bool))
+    buffer.add_demonstrations(
+        observations=np.array([[10.0], [11.0]]),
+        actions=np.zeros((2, 1)),
+        rewards=np.array([10.0, 20.0]),
+        next_observations=np.array([[11.0], [12.0]]),
+        terminated=np.zeros(2),
+        episode_end=np.zeros(2, dtype=bool),
+    )
     return buffer
 
 
 def add_steps(buffer, rewards, terminated_at=None, truncated_at=None):
     for t, r in enumerate(rewards):
-        buffer.add(np.array([float(t)]), np.zeros(1), r, np.array([t + 1.0]),
-                   terminated=t == terminated_at, truncated=t == truncated_at)
+        buffer.add(
+            np.array([float(t)]),
+            np.zeros(1),
+            r,
+            np.array([t + 1.0]),
+            terminated=t == terminated_at,
+            truncated=t == truncated_at,
+        )
 
 
 def test_n_step_return_hand_computed_stops_at_termination():
@@ -55,11 +64,11 @@ def test_n_step_bootstraps_through_truncation_and_stops_at_the_demo_boundary():
     add_steps(buffer, [1.0, 2.0, 3.0], truncated_at=1)
     returns, next_obs, discount = buffer.n_step(np.array([2]), n=3, gamma=GAMMA)
     assert returns[0] == pytest.approx(1 + 0.5 * 2)
-    assert discount[0] == pytest.approx(GAMMA ** 2) and next_obs[0, 0] == 2.0
+    assert discount[0] == pytest.approx(GAMMA**2) and next_obs[0, 0] == 2.0
     # the last demonstration has no successor: 20, bootstrapped from its next state
     returns, next_obs, discount = buffer.n_step(np.array([0, 1]), n=3, gamma=GAMMA)
     assert returns.tolist() == [10 + 0.5 * 20, 20.0]
-    assert discount.tolist() == [GAMMA ** 2, GAMMA] and next_obs[:, 0].tolist() == [12.0, 12.0]
+    assert discount.tolist() == [GAMMA**2, GAMMA] and next_obs[:, 0].tolist() == [12.0, 12.0]
 
 
 def test_demonstrations_are_never_overwritten():
@@ -82,14 +91,16 @@ def test_sampling_follows_priorities_and_weights_correct_for_them():
 
 def test_priority_formula_hand_computed():
     config = DDPGfDConfig(lambda_actor_priority=2.0, priority_eps=0.01, priority_eps_demo=1.0)
-    priorities = transition_priorities(np.array([0.5, -1.0]), np.array([[3.0, 4.0], [0.0, 0.0]]),
-                                       np.array([True, False]), config)
+    priorities = transition_priorities(
+        np.array([0.5, -1.0]), np.array([[3.0, 4.0], [0.0, 0.0]]), np.array([True, False]), config
+    )
     assert priorities.tolist() == pytest.approx([0.25 + 2 * 25 + 0.01 + 1.0, 1.0 + 0.01])
 
 
 def test_n_step_target_hand_computed():
-    target = n_step_target(torch.tensor([1.75, 4.0]), torch.tensor([0.0, 0.5]),
-                           torch.tensor([100.0, 10.0]))
+    target = n_step_target(
+        torch.tensor([1.75, 4.0]), torch.tensor([0.0, 0.5]), torch.tensor([100.0, 10.0])
+    )
     assert target.tolist() == [1.75, 9.0]
 
 
@@ -97,10 +108,22 @@ def test_update_reduces_critic_loss_on_a_fixed_batch():
     buffer = filled_buffer(capacity=64)
     rng = np.random.default_rng(0)
     for _ in range(40):
-        buffer.add(rng.normal(size=1), rng.uniform(-1, 1, 1), rng.normal(), rng.normal(size=1),
-                   terminated=False, truncated=False)
-    agent = DDPGfDAgent(1, 1, np.array([-1.0]), np.array([1.0]),
-                        DDPGfDConfig(hidden_sizes=(32, 32), critic_learning_rate=1e-2), seed=0)
+        buffer.add(
+            rng.normal(size=1),
+            rng.uniform(-1, 1, 1),
+            rng.normal(),
+            rng.normal(size=1),
+            terminated=False,
+            truncated=False,
+        )
+    agent = DDPGfDAgent(
+        1,
+        1,
+        np.array([-1.0]),
+        np.array([1.0]),
+        DDPGfDConfig(hidden_sizes=(32, 32), critic_learning_rate=1e-2),
+        seed=0,
+    )
     batch = buffer.sample(32, beta=1.0, n=3, gamma=0.9, rng=rng)
     first, priorities = agent.update(batch)
     for _ in range(100):
@@ -116,6 +139,7 @@ def test_ddpgfd_is_deterministic_and_explains_missing_transitions(monkeypatch):
     assert buffer.n_demo == 1000 and len(buffer) == 1300
 
     from replicate import demos as demos_module
+
     original = demos_module.load_demos
 
     def pairs_only(path, env_id):

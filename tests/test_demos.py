@@ -4,8 +4,14 @@ import shutil
 import numpy as np
 import pytest
 
-from replicate.demos import (Demonstrations, default_demo_path, load_demos, make_demos,
-                             mountaincar_rule, save_demos)
+from replicate.demos import (
+    Demonstrations,
+    default_demo_path,
+    load_demos,
+    make_demos,
+    mountaincar_rule,
+    save_demos,
+)
 from replicate.errors import DemoError
 
 MC = "MountainCarContinuous-v0"
@@ -17,8 +23,18 @@ def test_committed_mountaincar_demos_follow_the_papers_rule():
     expected = np.where(demos.observations[:, 1] < 0, -0.5, 0.5)
     np.testing.assert_array_equal(demos.actions[:, 0], expected)
     meta = demos.metadata
-    for key in ("env_id", "env_version", "n_pairs", "expert", "expert_return_mean",
-                "expert_return_std", "seed", "command", "content_sha256", "format_version"):
+    for key in (
+        "env_id",
+        "env_version",
+        "n_pairs",
+        "expert",
+        "expert_return_mean",
+        "expert_return_std",
+        "seed",
+        "command",
+        "content_sha256",
+        "format_version",
+    ):
         assert key in meta
     assert meta["expert_return_mean"] > 90  # the rule reaches the mountaintop every episode
     assert all(r > 90 for r in meta["expert_returns"])

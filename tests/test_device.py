@@ -18,37 +18,51 @@ from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from replicate.cli import main
 from replicate.errors import HarnessError
-from replicate.runner import (CHECKPOINT_FILE, CURVE_COLUMNS, execute, partial_directory,
-                              prepare)
+from replicate.runner import CHECKPOINT_FILE, CURVE_COLUMNS, execute, partial_directory, prepare
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 
 
-@pytest.mark.parametrize("gpu_present, requested, has_gpu_path, expected", [
-    (False, "auto", True, "cpu"),
-    (True, "auto", True, "cuda"),
-    (True, "auto", False, "cpu"),  # PPO and DDPGfD stay on CPU
-    (True, "cuda", False, "cpu"),
-    (True, "cpu", True, "cpu"),
-    (True, "cuda", True, "cuda"),
-])
+@pytest.mark.parametrize(
+    "gpu_present, requested, has_gpu_path, expected",
+    [
+        (False, "auto", True, "cpu"),
+        (True, "auto", True, "cuda"),
+        (True, "auto", False, "cpu"),  # PPO and DDPGfD stay on CPU
+        (True, "cuda", False, "cpu"),
+        (True, "cpu", True, "cpu"),
+        (True, "cuda", True, "cuda"),
+    ],
+)
 def test_device_resolution(monkeypatch, gpu_present, requested, has_gpu_path, expected):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: gpu_present)
     assert resolve_device(requested, has_gpu_path) == expected
 
 
-def test_asking_for_cuda_without_a_gpu_fails_and_names_the_way_out(monkeypatch, tmp_path,
-                                                                    capsys):
+def test_asking_for_cuda_without_a_gpu_fails_and_names_the_way_out(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(DeviceUnavailableError):
         resolve_device("cuda", True)
     with pytest.raises(ValueError, match="unknown device"):
         resolve_device("tpu", True)
     store = tmp_path / "store"
-    code = main(["train", "--algo", "sac", "--env", MOUNTAINCAR, "--steps", "10",
-                 "--device", "cuda", "--store", str(store)])
+    code = main(
+        [
+            "train",
+            "--algo",
+            "sac",
+            "--env",
+            MOUNTAINCAR,
+            "--steps",
+            "10",
+            "--device",
+            "cuda",
+            "--store",
+            str(store),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "no CUDA GPU" in err and "--device cpu" in err
     assert not store.exists() or not any(store.iterdir())
@@ -68,20 +82,30 @@ def test_the_training_loop_refuses_a_checkpoint_of_the_other_device(tmp_path):
     checkpoint = tmp_path / "checkpoint.pt"
     save_checkpoint(checkpoint, {"step": 200, "device": "cuda"})
     algorithm = get_algorithm("sac")
-    ctx = TrainContext(env_id=MOUNTAINCAR, seed=0, total_steps=400, eval_interval=100,
-                       eval_episodes=1, checkpoint_path=checkpoint, checkpoint_interval=100)
+    ctx = TrainContext(
+        env_id=MOUNTAINCAR,
+        seed=0,
+        total_steps=400,
+        eval_interval=100,
+        eval_episodes=1,
+        checkpoint_path=checkpoint,
+        checkpoint_interval=100,
+    )
     with pytest.raises(CheckpointDeviceError, match="made on cuda"):
         algorithm.train(ctx, algorithm.make_config(dict(TINY)))
 
 
 def _agents(kind: str, device: str):
     """Two agents of one seed: one replays its update as a CUDA graph, one runs it eagerly."""
-    if kind == "sac":
-        make = lambda graphs: SACAgent(11, 3, -np.ones(3), np.ones(3), SACConfig(), seed=0,
-                                       device=device, cuda_graphs=graphs)
-    else:
-        make = lambda graphs: TwinQSACAgent(11, 3, -np.ones(3), np.ones(3), TwinQSACConfig(),
-                                            seed=0, device=device, cuda_graphs=graphs)
+    agent_cls, config = (
+        (SACAgent, SACConfig()) if kind == "sac" else (TwinQSACAgent, TwinQSACConfig())
+    )
+
+    def make(graphs: bool):
+        return agent_cls(
+            11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device, cuda_graphs=graphs
+        )
+
     return make(True), make(False)
 
 
@@ -89,8 +113,13 @@ def _filled_buffer() -> ReplayBuffer:
     rng = np.random.default_rng(0)
     buffer = ReplayBuffer(11, 3, 2000)
     for _ in range(2000):
-        buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), rng.normal(),
-                   rng.normal(size=11), rng.random() < 0.05)
+        buffer.add(
+            rng.normal(size=11),
+            rng.uniform(-1, 1, 3),
+            rng.normal(),
+            rng.normal(size=11),
+            rng.random() < 0.05,
+        )
     return buffer
 
 
@@ -112,10 +141,12 @@ def test_graphed_updates_follow_the_eager_ones(kind):
 
 @cuda
 def test_runs_train_on_the_gpu_and_say_so(tmp_path):
-    sac = execute(prepare(RunSpec("sac-twin-q", MOUNTAINCAR, 0, 300, 100, 1, dict(TINY))),
-                  tmp_path, device="cuda")
-    ppo = execute(prepare(RunSpec("ppo", MOUNTAINCAR, 0, 300, 100, 1, {})), tmp_path,
-                  device="cuda")
+    sac = execute(
+        prepare(RunSpec("sac-twin-q", MOUNTAINCAR, 0, 300, 100, 1, dict(TINY))),
+        tmp_path,
+        device="cuda",
+    )
+    ppo = execute(prepare(RunSpec("ppo", MOUNTAINCAR, 0, 300, 100, 1, {})), tmp_path, device="cuda")
     assert sac.provenance["device"].startswith("cuda (")
     assert ppo.provenance["device"] == "cpu"  # no GPU path: it says where it really ran
     assert np.isfinite(sac.final_return)
@@ -140,15 +171,24 @@ def _interrupted_run(store, checkpoint_device: str):
     prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
     work = partial_directory(prepared, store)
     save_checkpoint(work / CHECKPOINT_FILE, {"step": 200, "device": checkpoint_device})
-    (work / "sittings.json").write_text(json.dumps([{
-        "started_utc": "2026-11-26T00:00:00+00:00", "resumed_from_step": 0, "wall_time_s": 1.0,
-        "git_revision": "x", "device": checkpoint_device}]))
+    (work / "sittings.json").write_text(
+        json.dumps(
+            [
+                {
+                    "started_utc": "2026-11-26T00:00:00+00:00",
+                    "resumed_from_step": 0,
+                    "wall_time_s": 1.0,
+                    "git_revision": "x",
+                    "device": checkpoint_device,
+                }
+            ]
+        )
+    )
     (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,nan,0.5\n")
     return prepared, work
 
 
-def test_a_resume_follows_its_checkpoint_under_auto_and_is_refused_otherwise(tmp_path,
-                                                                            monkeypatch):
+def test_a_resume_follows_its_checkpoint_under_auto_and_is_refused_otherwise(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     prepared, work = _interrupted_run(tmp_path, "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)")
     # no GPU here: the CUDA checkpoint cannot be followed, whatever was asked
@@ -174,8 +214,9 @@ def test_a_cpu_checkpoint_is_resumed_on_cpu_by_a_gpu_worker_under_auto(tmp_path,
         raise Stop  # nothing is trained: only the choice of device is under test
 
     algorithm = baselines.registry.get_algorithm("sac")
-    monkeypatch.setitem(baselines.registry._REGISTRY, "sac",
-                        dataclasses.replace(algorithm, train=record_device))
+    monkeypatch.setitem(
+        baselines.registry._REGISTRY, "sac", dataclasses.replace(algorithm, train=record_device)
+    )
     with pytest.raises(Stop):
         execute(prepared, tmp_path, device="cuda", follow_checkpoint=True)
     assert seen["device"] == "cpu"
@@ -187,8 +228,11 @@ def test_an_expert_checkpoint_from_a_gpu_is_refused_here_and_kept(tmp_path, monk
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     work = experts.work_dir_for("Hopper-v5", tmp_path)
     work.mkdir(parents=True)
-    (work / "progress.json").write_text(json.dumps(
-        {"total_steps": 200, "algo": "sac", "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}))
+    (work / "progress.json").write_text(
+        json.dumps(
+            {"total_steps": 200, "algo": "sac", "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}
+        )
+    )
     save_checkpoint(work / "checkpoint.pt", {"step": 100, "device": "cuda"})
     with pytest.raises(HarnessError, match="made on cuda"):
         experts.train_expert("Hopper-v5", steps=200, root=tmp_path, algo="sac")

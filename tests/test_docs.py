@@ -15,10 +15,24 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 DOCS = ROOT / "docs"
 LINK = re.compile(r"\[([^\]]+)\]\(([^)\s]+)\)")
-MC, HOPPER, WALKER, CHEETAH, ANT = ("MountainCarContinuous-v0", "Hopper-v5", "Walker2d-v5",
-                                    "HalfCheetah-v5", "Ant-v5")
-LABELS = {"sac": "SAC", "drl-eg": "DRL-EG", "drl-eg-gmm": "DRL-EG-GMM", "ddpgfd": "DDPGfD",
-          "ppo": "PPO", "ppo-bc": "PPO+BC", "ibrl": "IBRL", "rlpd": "RLPD", "jsrl": "JSRL"}
+MC, HOPPER, WALKER, CHEETAH, ANT = (
+    "MountainCarContinuous-v0",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "HalfCheetah-v5",
+    "Ant-v5",
+)
+LABELS = {
+    "sac": "SAC",
+    "drl-eg": "DRL-EG",
+    "drl-eg-gmm": "DRL-EG-GMM",
+    "ddpgfd": "DDPGfD",
+    "ppo": "PPO",
+    "ppo-bc": "PPO+BC",
+    "ibrl": "IBRL",
+    "rlpd": "RLPD",
+    "jsrl": "JSRL",
+}
 
 
 def summary(report: str) -> dict:
@@ -44,10 +58,14 @@ def table_rows(text: str, header_start: str) -> tuple[list[str], list[list[str]]
     starts with ``header_start``."""
     lines = text.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
-    cells = [[c.strip() for c in line.strip().strip("|").split("|")]
-             for line in lines[start:] if line.startswith("|")]
-    end = next((i for i, line in enumerate(lines[start:]) if not line.startswith("|")),
-               len(lines) - start)
+    cells = [
+        [c.strip() for c in line.strip().strip("|").split("|")]
+        for line in lines[start:]
+        if line.startswith("|")
+    ]
+    end = next(
+        (i for i, line in enumerate(lines[start:]) if not line.startswith("|")), len(lines) - start
+    )
     cells = cells[:end]
     return cells[0], cells[2:]
 
@@ -62,6 +80,7 @@ def assert_quoted(text: str, expected: str, where: str) -> None:
 
 # --- README: the claims x profiles table -------------------------------------------------
 
+
 def readme_table() -> tuple[list[str], dict[int, list[str]]]:
     header, rows = table_rows(README.read_text(), "| claim |")
     profiles = [cell.split(":")[0].strip() for cell in header[1:]]
@@ -71,7 +90,8 @@ def readme_table() -> tuple[list[str], dict[int, list[str]]]:
 
 def committed_summaries_with_claims() -> list[Path]:
     found = sorted(ROOT.glob("reports/*/summary.json")) + sorted(
-        ROOT.glob("reports/*/*/summary.json"))
+        ROOT.glob("reports/*/*/summary.json")
+    )
     return [p for p in found if claims_of(json.loads(p.read_text()))]
 
 
@@ -96,7 +116,8 @@ def test_the_readme_verdicts_are_the_summaries_verdicts():
                 (claim,) = [c for c in claims_of(data) if c["id"] == claim_id]
                 assert names(text, claim["verdict"]), (
                     f"README, claim {claim_id} at {profile}: '{text}', but {report}/summary.json "
-                    f"says '{verdict_head(claim['verdict'])}'")
+                    f"says '{verdict_head(claim['verdict'])}'"
+                )
     for path in committed_summaries_with_claims():  # and every report's verdict is there
         data = json.loads(path.read_text())
         report = str(path.parent.relative_to(ROOT))
@@ -105,7 +126,8 @@ def test_the_readme_verdicts_are_the_summaries_verdicts():
             cell = by_claim[claim["id"]][profiles.index(data["profile"])]
             assert any(names(text, claim["verdict"]) for text, _ in LINK.findall(cell)), (
                 f"README's table does not give {report}'s verdict on claim {claim['id']}: "
-                f"'{verdict_head(claim['verdict'])}'")
+                f"'{verdict_head(claim['verdict'])}'"
+            )
 
 
 def test_the_readme_keeps_the_two_commands_and_its_length():
@@ -160,9 +182,13 @@ def test_fig4_pairs_are_the_summarys(report):
     sac = ", ".join(f"{r['sac']:.0f}" for r in by_seed)
     drl = ", ".join(f"{r['drl']:.0f}" for r in by_seed)
     assert_quoted(text, f"SAC {sac}; DRL-EG {drl}", "results.md")
-    assert_quoted(text, f"mean paired difference {data['paired']['value']:.0f}"
-                  if report == "reports/fig4" else f"(mean {data['paired']['value']:.0f})",
-                  "results.md")
+    assert_quoted(
+        text,
+        f"mean paired difference {data['paired']['value']:.0f}"
+        if report == "reports/fig4"
+        else f"(mean {data['paired']['value']:.0f})",
+        "results.md",
+    )
     if report == "reports/reduced/fig4":
         differences = ", ".join(f"{r['difference']:+.0f}" for r in by_seed)
         assert_quoted(text, f"seed {differences}", "results.md")
@@ -171,14 +197,21 @@ def test_fig4_pairs_are_the_summarys(report):
 def test_the_threshold_ablations_are_the_summarys():
     text = flat(RESULTS)
     quick = {r["label"]: r for r in summary("reports/ablate-threshold")["rows"]}
-    assert_quoted(text, f"area under the curve {f1(quick['0.01']['auc']['mean'])} against "
-                        f"{f1(quick['0.05']['auc']['mean'])}", "results.md")
+    assert_quoted(
+        text,
+        f"area under the curve {f1(quick['0.01']['auc']['mean'])} against "
+        f"{f1(quick['0.05']['auc']['mean'])}",
+        "results.md",
+    )
     assert_quoted(text, f"mean {f1(quick['0.01']['final']['mean'])})", "results.md")
     assert_quoted(text, f"final {f1(quick['0.05']['final']['mean'])}", "results.md")
 
     ant, walker = (summary(f"reports/reduced/ablate-threshold-{e}") for e in ("ant", "walker2d"))
-    assert_quoted(text, f"SAC: Ant {f1(ant['sac_final_mean'])}, Walker2d "
-                        f"{f1(walker['sac_final_mean'])}", "results.md")
+    assert_quoted(
+        text,
+        f"SAC: Ant {f1(ant['sac_final_mean'])}, Walker2d {f1(walker['sac_final_mean'])}",
+        "results.md",
+    )
     _, body = table_rows(RESULTS.read_text(), "| T2 |")
     for row in body:
         for data, cell in ((ant, row[2]), (walker, row[4])):
@@ -188,9 +221,11 @@ def test_the_threshold_ablations_are_the_summarys():
 
     gains = {r["setting"]: r for r in ant["t2_rule"]["rows"]}
     one = gains["1x"]
-    quoted = (f"1x {one['gain']:.3f} (Ant {one['per_env'][ANT]['gain']:+.3f}, Walker2d "
-              f"{one['per_env'][WALKER]['gain']:+.3f}), 4x {gains['4x']['gain']:.3f}, 16x "
-              f"{gains['16x']['gain']:.3f}")
+    quoted = (
+        f"1x {one['gain']:.3f} (Ant {one['per_env'][ANT]['gain']:+.3f}, Walker2d "
+        f"{one['per_env'][WALKER]['gain']:+.3f}), 4x {gains['4x']['gain']:.3f}, 16x "
+        f"{gains['16x']['gain']:.3f}"
+    )
     for doc in (RESULTS, DOCS / "decisions.md"):
         assert_quoted(flat(doc), quoted, doc.name)
         assert_quoted(flat(doc), f"{gains['64x']['gain']:.3f}", doc.name)
@@ -206,30 +241,44 @@ def test_the_comparisons_are_the_summarys():
 
     reduced = summary("reports/reduced/rlfd")
     iqm = {a: v[0] for a, v in reduced["aggregate"]["iqm"].items()}
-    assert_quoted(text, ", ".join(f"{LABELS[a]} {iqm[a]:.2f}" for a in
-                                  ("ibrl", "ddpgfd", "rlpd", "drl-eg", "jsrl", "sac")),
-                  "results.md")
+    assert_quoted(
+        text,
+        ", ".join(
+            f"{LABELS[a]} {iqm[a]:.2f}" for a in ("ibrl", "ddpgfd", "rlpd", "drl-eg", "jsrl", "sac")
+        ),
+        "results.md",
+    )
     beats = {i["other"]: i["value"] for i in reduced["aggregate"]["improvement"]}
-    assert_quoted(text, f"beats SAC is {beats['sac']:.2f}, " + ", ".join(
-        f"{LABELS[a]} {beats[a]:.2f}" for a in ("ibrl", "rlpd", "jsrl", "ddpgfd")), "results.md")
+    assert_quoted(
+        text,
+        f"beats SAC is {beats['sac']:.2f}, "
+        + ", ".join(f"{LABELS[a]} {beats[a]:.2f}" for a in ("ibrl", "rlpd", "jsrl", "ddpgfd")),
+        "results.md",
+    )
     cells = {(c["env_id"], c["algo"]): c["final_normalised"] for c in reduced["cells"]}
     cart, cup = "dm_control/cartpole-swingup_sparse-v0", "dm_control/ball_in_cup-catch-v0"
-    for quoted in (f"IBRL ({cells[(cart, 'ibrl')]:.3f} normalised",
-                   f"DDPGfD ({cells[(cart, 'ddpgfd')]:.3f})", f"JSRL {cells[(cart, 'jsrl')]:.3f}",
-                   f"SAC's to the last digit ({cells[(cup, 'drl-eg')]:.3f} normalised",
-                   f"RLPD ended at {cells[(cup, 'rlpd')]:.3f}",
-                   f"DDPGfD {cells[(cup, 'ddpgfd')]:.3f}, IBRL {cells[(cup, 'ibrl')]:.3f}, "
-                   f"JSRL {cells[(cup, 'jsrl')]:.3f}",
-                   *(f"{env}: DRL-EG {cells[(env_id, 'drl-eg')]:.3f}"
-                     f"{' normalised' if env == 'Ant' else ''}, SAC "
-                     f"{cells[(env_id, 'sac')]:.3f}, DDPGfD {cells[(env_id, 'ddpgfd')]:.3f}"
-                     for env, env_id in (("Ant", ANT), ("Hopper", HOPPER)))):
+    for quoted in (
+        f"IBRL ({cells[(cart, 'ibrl')]:.3f} normalised",
+        f"DDPGfD ({cells[(cart, 'ddpgfd')]:.3f})",
+        f"JSRL {cells[(cart, 'jsrl')]:.3f}",
+        f"SAC's to the last digit ({cells[(cup, 'drl-eg')]:.3f} normalised",
+        f"RLPD ended at {cells[(cup, 'rlpd')]:.3f}",
+        f"DDPGfD {cells[(cup, 'ddpgfd')]:.3f}, IBRL {cells[(cup, 'ibrl')]:.3f}, "
+        f"JSRL {cells[(cup, 'jsrl')]:.3f}",
+        *(
+            f"{env}: DRL-EG {cells[(env_id, 'drl-eg')]:.3f}"
+            f"{' normalised' if env == 'Ant' else ''}, SAC "
+            f"{cells[(env_id, 'sac')]:.3f}, DDPGfD {cells[(env_id, 'ddpgfd')]:.3f}"
+            for env, env_id in (("Ant", ANT), ("Hopper", HOPPER))
+        ),
+    ):
         assert_quoted(text, quoted, "results.md")
     assert cells[(cart, "sac")] == cells[(cart, "drl-eg")] == 0.0
     assert cells[(cup, "sac")] == cells[(cup, "drl-eg")]  # the guider never acted
 
 
 # --- docs/experts.md and docs/performance.md: the records behind them --------------------
+
 
 def test_the_experts_table_is_the_demonstrations_record():
     from replicate.demos import default_demo_path, load_demos
@@ -240,8 +289,10 @@ def test_the_experts_table_is_the_demonstrations_record():
     for row in body:
         env_id = row[0].split(" ")[0]
         meta = load_demos(default_demo_path(env_id), env_id).metadata
-        wanted = (f"{meta['expert_return_mean']:.1f} ± {meta['expert_return_std']:.1f} "
-                  f"({meta['expert_episodes']})")
+        wanted = (
+            f"{meta['expert_return_mean']:.1f} ± {meta['expert_return_std']:.1f} "
+            f"({meta['expert_episodes']})"
+        )
         assert row[3].startswith(wanted), f"experts.md, {env_id}: '{row[3]}', record: {wanted}"
         target = EXPERT_TARGETS.get(env_id)
         if target and meta["expert_return_mean"] < target:
@@ -255,8 +306,9 @@ def test_the_seed_batch_benches_are_the_recorded_ones():
     perf = (DOCS / "performance.md").read_text()
     cpu = json.loads((ROOT / "reports/bench/batched_cpu.json").read_text())["cpu"]
     _, body = table_rows(perf, "| per machine |")
-    keys = ["machine one run per process"] + [f"machine batched N={n} per process"
-                                              for n in (1, 2, 4, 8)]
+    keys = ["machine one run per process"] + [
+        f"machine batched N={n} per process" for n in (1, 2, 4, 8)
+    ]
     assert [row[1] for row in body] == [f"{cpu[k]:.1f}" for k in keys]
 
     gpu = json.loads((ROOT / "reports/bench/batched_gpu.json").read_text())["gpu_batched"]
@@ -269,10 +321,12 @@ def test_the_seed_batch_benches_are_the_recorded_ones():
         measured = [gpu[f"{algo} {env_id} N={n}"]["env_steps_per_s"] for n in (8, 16, 32, 64)]
         quoted = [float(cell.replace(",", "")) for cell in row[1:5]]
         assert all(abs(q - m) <= 0.5 for q, m in zip(quoted, measured)), (
-            f"performance.md, {row[0]}: {row[1:5]} against {measured}")
+            f"performance.md, {row[0]}: {row[1:5]} against {measured}"
+        )
 
 
 # --- links ---------------------------------------------------------------------------------
+
 
 def anchors(path: Path) -> set[str]:
     """The anchors a Markdown file's headings get on GitHub, or an HTML file's ids."""

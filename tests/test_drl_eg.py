@@ -2,9 +2,16 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.drl_eg import (DRLEGConfig, demo_state_spacing, fit_gmm, fit_neural_guider,
-                              functional_discriminator, functional_guider,
-                              gmm_discriminator, nearest_demo)
+from baselines.drl_eg import (
+    DRLEGConfig,
+    demo_state_spacing,
+    fit_gmm,
+    fit_neural_guider,
+    functional_discriminator,
+    functional_guider,
+    gmm_discriminator,
+    nearest_demo,
+)
 from replicate.demos import default_demo_path, load_demos
 from tests.helpers import MOUNTAINCAR, curve_signature, train_tiny
 
@@ -32,8 +39,12 @@ def test_zero_threshold_does_not_guide_a_state_equal_to_a_demonstration_state():
     config = DRLEGConfig(guide_threshold=0.0)
     guidance = Guidance(config, demos, np.array([-1.0]), np.array([1.0]), seed=0)
     assert guidance.guide(wall) is None
-    assert Guidance(DRLEGConfig(guide_threshold=1e-9), demos, np.array([-1.0]),
-                    np.array([1.0]), seed=0).guide(wall) is not None
+    assert (
+        Guidance(
+            DRLEGConfig(guide_threshold=1e-9), demos, np.array([-1.0]), np.array([1.0]), seed=0
+        ).guide(wall)
+        is not None
+    )
 
 
 def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
@@ -42,12 +53,14 @@ def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
     rng = np.random.default_rng(0)
     exact = functional_guider(demo_actions, 0, 0.0, rng, low, high)
     np.testing.assert_allclose(exact, [0.5, -0.2], atol=1e-7)
-    samples = np.stack([functional_guider(demo_actions, 0, 0.1, rng, low, high)
-                        for _ in range(4000)])
+    samples = np.stack(
+        [functional_guider(demo_actions, 0, 0.1, rng, low, high) for _ in range(4000)]
+    )
     np.testing.assert_allclose(samples.mean(0), [0.5, -0.2], atol=0.01)
     np.testing.assert_allclose(samples.std(0), [0.1, 0.1], atol=0.01)
-    clipped = np.stack([functional_guider(demo_actions, 1, 0.5, rng, low, high)
-                        for _ in range(200)])
+    clipped = np.stack(
+        [functional_guider(demo_actions, 1, 0.5, rng, low, high) for _ in range(200)]
+    )
     assert clipped.max() <= 1.0 and clipped.min() >= -1.0
 
 
@@ -63,8 +76,9 @@ def test_envs_without_a_chosen_t2_take_it_from_their_demonstrations(monkeypatch,
     from replicate import demos as demos_module
     from replicate import experiments
 
-    assert experiments.drl_eg_env_defaults(MOUNTAINCAR) == \
-        experiments.DRL_EG_ENV_DEFAULTS[MOUNTAINCAR]
+    assert (
+        experiments.drl_eg_env_defaults(MOUNTAINCAR) == experiments.DRL_EG_ENV_DEFAULTS[MOUNTAINCAR]
+    )
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     monkeypatch.delitem(experiments.DRL_EG_ENV_DEFAULTS, MOUNTAINCAR)
     chosen = experiments.drl_eg_env_defaults(MOUNTAINCAR)
@@ -90,8 +104,14 @@ def test_zero_threshold_never_guides_so_drl_eg_equals_sac():
 
 
 def test_large_threshold_guides_every_step_and_stores_the_executed_action():
-    curve, buffer = train_tiny("drl-eg", seed=0, steps=400, guide_threshold=1e6,
-                               guide_noise_std=0.0, learning_starts=10_000)
+    curve, buffer = train_tiny(
+        "drl-eg",
+        seed=0,
+        steps=400,
+        guide_threshold=1e6,
+        guide_noise_std=0.0,
+        learning_starts=10_000,
+    )
     assert curve[1].guided_fraction == 1.0 and curve[1].gate_open
     # with sigma = 0 the executed (and stored) action is the MountainCar rule's +-0.5
     stored = buffer.actions[:400, 0]
@@ -141,9 +161,17 @@ def test_neural_guider_learns_the_mountaincar_rule():
 
 def test_neural_guider_leaves_the_policy_initial_weights_alone():
     first, _ = train_tiny("drl-eg", seed=3, steps=200, guide_threshold=0.0)
-    second, _ = train_tiny("drl-eg", seed=3, steps=200, guide_threshold=0.0,
-                           discriminator="gmm", gmm_threshold_quantile=1.0, guider="neural",
-                           neural_guider_steps=10, neural_guider_hidden=(8,))
+    second, _ = train_tiny(
+        "drl-eg",
+        seed=3,
+        steps=200,
+        guide_threshold=0.0,
+        discriminator="gmm",
+        gmm_threshold_quantile=1.0,
+        guider="neural",
+        neural_guider_steps=10,
+        neural_guider_hidden=(8,),
+    )
     # a quantile of 1 makes the GMM discriminator guide nowhere, so both runs are SAC
     assert [p.returns for p in first] == [p.returns for p in second]
 
@@ -166,10 +194,16 @@ def test_kd_tree_guidance_finds_the_brute_force_nearest_demo():
 
     rng = np.random.default_rng(0)
     states = rng.normal(size=(5000, 11)).astype(np.float32)
-    demos = Demonstrations(states, rng.uniform(-1, 1, (5000, 3)).astype(np.float32),
-                           {"expert_return_mean": 1.0})
-    guidance = Guidance(DRLEGConfig(guide_threshold=1e6, guide_noise_std=0.0), demos,
-                        -np.ones(3), np.ones(3), seed=0)
+    demos = Demonstrations(
+        states, rng.uniform(-1, 1, (5000, 3)).astype(np.float32), {"expert_return_mean": 1.0}
+    )
+    guidance = Guidance(
+        DRLEGConfig(guide_threshold=1e6, guide_noise_std=0.0),
+        demos,
+        -np.ones(3),
+        np.ones(3),
+        seed=0,
+    )
     for query in rng.normal(size=(200, 11)):
         distance, index = nearest_demo(guidance.states, query)
         tree_distance, tree_index = guidance.tree.query(query)
@@ -181,7 +215,8 @@ def test_guidance_on_twin_q_sac_is_off_at_zero_and_guides_at_a_large_threshold()
     sac_curve, _ = train_tiny("sac-twin-q", seed=5, steps=400)
     off_curve, _ = train_tiny("drl-eg-twin-q", seed=5, steps=400, guide_threshold=0.0)
     assert [p.returns for p in off_curve] == [p.returns for p in sac_curve]
-    guided, buffer = train_tiny("drl-eg-twin-q", seed=5, steps=400, guide_threshold=1e6,
-                                guide_noise_std=0.0)
+    guided, buffer = train_tiny(
+        "drl-eg-twin-q", seed=5, steps=400, guide_threshold=1e6, guide_noise_std=0.0
+    )
     assert guided[1].guided_fraction == 1.0
     assert set(np.round(buffer.actions[:400, 0], 6)) <= {-0.5, 0.5}

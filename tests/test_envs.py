@@ -25,10 +25,18 @@ def test_adapter_passes_gymnasium_checker_and_matches_spec_table(env_id):
 
 
 def test_paper_envs_and_dm_control_tasks_are_in_the_table():
-    assert PAPER_ENV_IDS == ("MountainCarContinuous-v0", "Hopper-v5", "Walker2d-v5",
-                             "HalfCheetah-v5", "Ant-v5")
-    for task in ("dm_control/cartpole-swingup_sparse-v0", "dm_control/ball_in_cup-catch-v0",
-                 "dm_control/walker-walk-v0"):
+    assert PAPER_ENV_IDS == (
+        "MountainCarContinuous-v0",
+        "Hopper-v5",
+        "Walker2d-v5",
+        "HalfCheetah-v5",
+        "Ant-v5",
+    )
+    for task in (
+        "dm_control/cartpole-swingup_sparse-v0",
+        "dm_control/ball_in_cup-catch-v0",
+        "dm_control/walker-walk-v0",
+    ):
         assert ENV_SPECS[task].suite == "dm_control"
     assert ENV_SPECS["Ant-v5"].paper_obs_dim == 111 and ENV_SPECS["Ant-v5"].obs_dim == 105
 
@@ -37,7 +45,9 @@ def test_unknown_env_lists_the_known_ones():
     with pytest.raises(UnknownEnvError) as info:
         make_env("Hopper-v2")
     message = str(info.value)
-    assert "Hopper-v2" in message and "Hopper-v5" in message and "dm_control/walker-walk-v0" in message
+    assert (
+        "Hopper-v2" in message and "Hopper-v5" in message and "dm_control/walker-walk-v0" in message
+    )
     with pytest.raises(UnknownEnvError):
         env_spec("nope")
 

@@ -1,8 +1,8 @@
 import json
 
 import numpy as np
-import torch
 import pytest
+import torch
 
 from replicate import experts
 from replicate.demos import load_demos, make_demos, save_demos
@@ -22,8 +22,9 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
     root = expert_dir / "work"
     with pytest.raises(HarnessError, match="no expert training found"):
         experts.export_expert(ENV, root)
-    path = experts.train_expert(ENV, steps=300, root=root, eval_interval=100,
-                                checkpoint_interval=50)
+    path = experts.train_expert(
+        ENV, steps=300, root=root, eval_interval=100, checkpoint_interval=50
+    )
     policy = experts.ExpertPolicy(ENV, path)
     meta = policy.metadata
     assert meta["steps_trained"] == 300 and meta["budget_steps"] == 300
@@ -34,8 +35,11 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
     assert meta["weights_dtype"] == "float16"
     assert all(t.dtype == torch.float16 for t in saved["policy"].values() if t.is_floating_point())
     best = torch.load(root / "Hopper-v5" / "best_policy.pt", weights_only=True)["policy"]
-    assert all(torch.equal(p.data, best[name].half().float())
-               for name, p in policy.policy.state_dict().items() if p.is_floating_point())
+    assert all(
+        torch.equal(p.data, best[name].half().float())
+        for name, p in policy.policy.state_dict().items()
+        if p.is_floating_point()
+    )
 
     demos = make_demos(ENV, n_pairs=50, seed=0)
     assert demos.metadata["expert_episodes"] >= 10
@@ -53,8 +57,7 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
 
 def test_sparse_task_takes_the_dense_twins_expert(expert_dir):
     with pytest.raises(HarnessError, match="takes its expert from"):
-        experts.train_expert("dm_control/cartpole-swingup_sparse-v0", steps=10,
-                             root=expert_dir)
+        experts.train_expert("dm_control/cartpole-swingup_sparse-v0", steps=10, root=expert_dir)
 
 
 def test_missing_expert_is_a_clear_error(expert_dir):
@@ -66,8 +69,7 @@ def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     root = expert_dir / "work"
     env_id = "dm_control/cartpole-swingup-v0"  # its default expert trainer is the paper's SAC
     assert experts.expert_algo_for(env_id) == "sac"
-    path = experts.train_expert(env_id, steps=200, root=root, eval_interval=100,
-                                algo="sac-twin-q")
+    path = experts.train_expert(env_id, steps=200, root=root, eval_interval=100, algo="sac-twin-q")
     policy = experts.ExpertPolicy(env_id, path)
     assert policy.metadata["algo"] == "sac-twin-q"
     assert "--algo sac-twin-q" in policy.metadata["command"]  # not the env's default
@@ -83,19 +85,24 @@ def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
 
 def test_a_seed_batch_exports_its_best_member(expert_dir):
     root = expert_dir / "work"
-    path = experts.train_expert_batch(ENV, steps=300, seeds=[1, 2], root=root,
-                                      eval_interval=100, device="cpu")
+    path = experts.train_expert_batch(
+        ENV, steps=300, seeds=[1, 2], root=root, eval_interval=100, device="cpu"
+    )
     meta = experts.ExpertPolicy(ENV, path).metadata
     best = meta["batch_best_eval_return"]
     assert set(best) == {"1", "2"}
     assert meta["seed"] == int(max(best, key=best.get))
     assert meta["best_eval_return"] == pytest.approx(max(best.values()))
     assert meta["steps_trained"] == 300 and "--seeds 1,2" in meta["command"]
-    member = torch.load(root / ENV / "batch" / f"seed-{meta['seed']}" / "best_policy.pt",
-                        weights_only=True)
+    member = torch.load(
+        root / ENV / "batch" / f"seed-{meta['seed']}" / "best_policy.pt", weights_only=True
+    )
     exported = torch.load(path, weights_only=True)["policy"]
-    assert all(torch.equal(exported[name], t.half()) for name, t in member["policy"].items()
-               if t.is_floating_point())
+    assert all(
+        torch.equal(exported[name], t.half())
+        for name, t in member["policy"].items()
+        if t.is_floating_point()
+    )
     for seed in (1, 2):  # every member kept its own curve and best policy
         progress = json.loads((root / ENV / "batch" / f"seed-{seed}" / "progress.json").read_text())
         assert [step for step, _ in progress["curve"]] == [0, 100, 200, 300]
@@ -103,8 +110,15 @@ def test_a_seed_batch_exports_its_best_member(expert_dir):
 
 
 def test_a_time_limited_seed_batch_stops_and_keeps_what_it_evaluated(expert_dir):
-    path = experts.train_expert_batch(ENV, steps=10_000, seeds=[1, 2], root=expert_dir / "w",
-                                      eval_interval=100, device="cpu", time_limit_s=0)
+    path = experts.train_expert_batch(
+        ENV,
+        steps=10_000,
+        seeds=[1, 2],
+        root=expert_dir / "w",
+        eval_interval=100,
+        device="cpu",
+        time_limit_s=0,
+    )
     meta = experts.ExpertPolicy(ENV, path).metadata
     assert meta["steps_trained"] == 0 and meta["best_step"] == 0  # stopped at its first step
     with pytest.raises(HarnessError, match="two or more distinct seeds"):

@@ -12,8 +12,16 @@ from replicate.experiments import DRL_EG_ENV_DEFAULTS, FIG3_ALGORITHMS
 def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
     store, out = smoke_fig3
     html = (out / "index.html").read_text()
-    for section in ("claims", "figure", "final-returns", "budgets", "demonstrations", "runs",
-                    "provenance", "smoke-warning"):
+    for section in (
+        "claims",
+        "figure",
+        "final-returns",
+        "budgets",
+        "demonstrations",
+        "runs",
+        "provenance",
+        "smoke-warning",
+    ):
         assert f'id="{section}"' in html
     image = re.search(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', html)
     assert image and len(image.group(1)) > 1000
@@ -31,7 +39,8 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     assert 'id="guidance"' in html
     guidance = {g["algo"]: g for g in summary["guidance"]}
     assert guidance["drl-eg"]["t2"] == [
-        DRL_EG_ENV_DEFAULTS["MountainCarContinuous-v0"]["guide_threshold"]]
+        DRL_EG_ENV_DEFAULTS["MountainCarContinuous-v0"]["guide_threshold"]
+    ]
     assert guidance["drl-eg-gmm"]["t2"] == [] and not guidance["drl-eg-gmm"]["uses_t2"]
     assert all(0 <= share <= 1 for g in guidance.values() for share in g["guided_share"])
     assert len(guidance["drl-eg"]["guided_share"]) == guidance["drl-eg"]["runs"]
@@ -47,12 +56,16 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     # the report command rebuilds the same numbers from the store alone, and every other
     # report it can: Fig. 3's DRL-EG runs are the ablation's point at the default T2
     rebuilt_dir = tmp_path / "rebuilt"
-    assert main(["report", "--profile", "smoke", "--store", str(store),
-                 "--out", str(rebuilt_dir)]) == 0
+    assert (
+        main(["report", "--profile", "smoke", "--store", str(store), "--out", str(rebuilt_dir)])
+        == 0
+    )
     rebuilt = json.loads((rebuilt_dir / "fig3" / "summary.json").read_text())
     assert rebuilt["final_returns"] == summary["final_returns"]
-    assert "rebuilt from the run store without training" in \
-        (rebuilt_dir / "fig3" / "index.html").read_text()
+    assert (
+        "rebuilt from the run store without training"
+        in (rebuilt_dir / "fig3" / "index.html").read_text()
+    )
     ablation = json.loads((rebuilt_dir / "ablate-threshold" / "summary.json").read_text())
     assert [(r["threshold"], len(r["runs"])) for r in ablation["rows"]] == [(0.05, 2)]
     assert (rebuilt_dir / "table1" / "index.html").is_file()
@@ -63,8 +76,10 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
     out = tmp_path / "report"
     (out / "fig3").mkdir(parents=True)
     (out / "fig3" / "index.html").write_text("a committed report")
-    assert main(["report", "--profile", "smoke", "--store", str(tmp_path / "none"),
-                 "--out", str(out)]) == 0
+    assert (
+        main(["report", "--profile", "smoke", "--store", str(tmp_path / "none"), "--out", str(out)])
+        == 0
+    )
     assert (out / "fig3" / "index.html").read_text() == "a committed report"
     printed = capsys.readouterr().out
     assert "fig3: no runs of the smoke profile" in printed and "left as it is" in printed
@@ -94,15 +109,19 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
     assert [r["expert_run"]["return"] for r in tianshou] == [at[100_000], at[200_000]]
     assert tianshou[0]["expert_run"]["algo"] == "sac-twin-q"
     assert expert_training_curve("MountainCarContinuous-v0") is None  # no expert file
-    walker = {("Walker2d-v5", "sac"): Group("Walker2d-v5", "sac", [0, 1], curves[:, -1],
-                                             curves, steps)}
-    by_steps = {r["steps"]: r["expert_run"] for r in published_rows(walker, {"Walker2d-v5":
-                                                                             200_000})}
+    walker = {
+        ("Walker2d-v5", "sac"): Group("Walker2d-v5", "sac", [0, 1], curves[:, -1], curves, steps)
+    }
+    by_steps = {
+        r["steps"]: r["expert_run"] for r in published_rows(walker, {"Walker2d-v5": 200_000})
+    }
     trained = expert_training_curve("Walker2d-v5")  # the best of a seed batch, 180k steps
     assert by_steps[100_000]["best_of"] == trained["best_of"] > 1
     assert (by_steps[200_000] is None) == (200_000 not in trained["steps"])
     eff = efficiency_rows(groups, {"Ant-v5": 4400.0})
-    assert eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000  # only 2400 reaches 2200
+    assert (
+        eff[0]["reach"]["n"] == 1 and eff[0]["reach"]["mean"] == 200_000
+    )  # only 2400 reaches 2200
 
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
@@ -115,12 +134,12 @@ def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
     assert [(f.low, f.high) for f in joined if f.algo == "sac"] == [(alone.low, alone.high)]
     demo = {"MountainCarContinuous-v0": 95.0}
     area = efficiency_rows(claim_groups(cell), demo)[0]["area"]
-    assert [r["area"] for r in efficiency_rows(claim_groups(other + cell), demo)
-            if r["algo"] == "sac"] == [area]
+    assert [
+        r["area"] for r in efficiency_rows(claim_groups(other + cell), demo) if r["algo"] == "sac"
+    ] == [area]
 
 
-def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3, tmp_path,
-                                                                      capsys):
+def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3, tmp_path, capsys):
     store, _ = smoke_fig3
     out = tmp_path / "report"
     assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
@@ -143,8 +162,9 @@ def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3,
     assert json.loads(summary_file.read_text()) == rebuilt
 
 
-def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3, tmp_path,
-                                                                     capsys, monkeypatch):
+def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(
+    smoke_fig3, tmp_path, capsys, monkeypatch
+):
     import shutil
 
     trained, _ = smoke_fig3
@@ -156,24 +176,74 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3
     before = sorted(p.name for p in store.iterdir())
 
     capsys.readouterr()
-    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
-                 "--algos", "sac", "--dry-run"]) == 0
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "smoke",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--algos",
+                "sac",
+                "--dry-run",
+            ]
+        )
+        == 0
+    )
     plan = capsys.readouterr().out
     assert "2 to train" in plan and "sac" in plan and " ppo " not in plan
     assert plan.rstrip().endswith("one run per process")
-    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
-                 "--algos", "sac", "ppo", "--batch", "2", "--dry-run"]) == 0
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "smoke",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--algos",
+                "sac",
+                "ppo",
+                "--batch",
+                "2",
+                "--dry-run",
+            ]
+        )
+        == 0
+    )
     plan = capsys.readouterr().out  # SAC's two seeds batch; PPO has no batched trainer
     assert plan.rstrip().endswith("2 runs in 1 seed batch, 2 runs one per process")
     assert sorted(p.name for p in store.iterdir()) == before and not out.exists()
 
-    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--out", str(out),
-                 "--algos", "sac", "--envs", "MountainCarContinuous-v0"]) == 0
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "smoke",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--algos",
+                "sac",
+                "--envs",
+                "MountainCarContinuous-v0",
+            ]
+        )
+        == 0
+    )
     assert len(list(store.glob("sac__*"))) == 2 and not list(store.glob("ppo__*"))
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) - 2  # every run of the grid
-    assert [(s["algo"], s["reason"][:12]) for s in summary["skipped"]] == \
-        [("ppo", "seeds 0, 1 n")]  # one line per cell, with the seeds it lacks
+    assert [(s["algo"], s["reason"][:12]) for s in summary["skipped"]] == [
+        ("ppo", "seeds 0, 1 n")
+    ]  # one line per cell, with the seeds it lacks
 
     # a store that holds only this machine's share never replaces a report naming more runs
     share = tmp_path / "share"
@@ -181,21 +251,52 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(smoke_fig3
     for run in store.glob("sac__*"):
         shutil.copytree(run, share / run.name)
     capsys.readouterr()
-    assert main(["fig3", "--profile", "smoke", "--store", str(share), "--out", str(out),
-                 "--algos", "sac"]) == 0
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "smoke",
+                "--store",
+                str(share),
+                "--out",
+                str(out),
+                "--algos",
+                "sac",
+            ]
+        )
+        == 0
+    )
     assert "left as it is" in capsys.readouterr().out
     assert json.loads((out / "summary.json").read_text()) == summary
 
     capsys.readouterr()
-    assert main(["fig3", "--profile", "smoke", "--store", str(store), "--algos", "sax",
-                 "--dry-run"]) == 2
+    assert (
+        main(["fig3", "--profile", "smoke", "--store", str(store), "--algos", "sax", "--dry-run"])
+        == 2
+    )
     error = capsys.readouterr().err
     assert "--algos: sax not in this grid" in error and "ppo-bc" in error
     from replicate import experiments
 
     monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", None)  # as before the rule was fixed
-    assert main(["fig3", "--profile", "reduced", "--store", str(store), "--algos", "drl-eg",
-                 "--envs", "Ant-v5", "--dry-run"]) == 2
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "reduced",
+                "--store",
+                str(store),
+                "--algos",
+                "drl-eg",
+                "--envs",
+                "Ant-v5",
+                "--dry-run",
+            ]
+        )
+        == 2
+    )
     assert "wait for the MuJoCo T2 rule" in capsys.readouterr().err
     # the cells skipped for the rule are printed only where the selection reaches them
     reduced = ["fig3", "--profile", "reduced", "--store", str(store), "--dry-run"]

@@ -6,8 +6,24 @@ from replicate.cli import main
 def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     store, _ = smoke_fig3  # the smoke Fig. 3 already holds these very runs
     out = tmp_path / "fig4"
-    assert main(["fig4", "--profile", "smoke", "--env", "MountainCarContinuous-v0",
-                 "--seeds", "2", "--store", str(store), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "fig4",
+                "--profile",
+                "smoke",
+                "--env",
+                "MountainCarContinuous-v0",
+                "--seeds",
+                "2",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "training 0 runs" in capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
     assert [r["seed"] for r in summary["rows"]] == [0, 1]
@@ -21,8 +37,10 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
     # two of the paper's four pairs: the report says which seeds it lacks and how to train them
     missing = {(m["algo"], m["reason"]) for m in summary["missing"]}
     assert {algo for algo, _ in missing} == {"sac", "drl-eg"}
-    assert all(why.startswith("seeds 2, 3 not in the store yet") and "replicate-fig4" in why
-               for _, why in missing)
+    assert all(
+        why.startswith("seeds 2, 3 not in the store yet") and "replicate-fig4" in why
+        for _, why in missing
+    )
     assert 'id="incomplete"' in html and "Incomplete: 2 paired" in html
     assert summary["paired"]["method"] == "95% paired t-interval, 2 pairs"
     assert "paired t-test" in summary["paired"]["test"] and summary["paired"]["test"] in html
@@ -30,9 +48,27 @@ def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
 
 def test_fig4_dry_run_plans_the_paired_batches_and_writes_nothing(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "fig4"
-    assert main(["fig4", "--profile", "smoke", "--env", "MountainCarContinuous-v0",
-                 "--seeds", "3", "--batch", "3", "--store", str(store), "--out", str(out),
-                 "--dry-run"]) == 0
+    assert (
+        main(
+            [
+                "fig4",
+                "--profile",
+                "smoke",
+                "--env",
+                "MountainCarContinuous-v0",
+                "--seeds",
+                "3",
+                "--batch",
+                "3",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--dry-run",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "dry run: 6 runs, 0 already in" in printed
     assert "6 runs in 2 seed batches" in printed and "seeds 0,1,2" in printed
@@ -43,8 +79,19 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
     from replicate import demos
 
     monkeypatch.setattr(demos, "default_demo_path", lambda env_id: tmp_path / "missing.npz")
-    code = main(["fig4", "--profile", "smoke", "--env", "HalfCheetah-v5",
-                 "--store", str(tmp_path), "--out", str(tmp_path / "out")])
+    code = main(
+        [
+            "fig4",
+            "--profile",
+            "smoke",
+            "--env",
+            "HalfCheetah-v5",
+            "--store",
+            str(tmp_path),
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert code == 2
     assert "nox -s experts -- --env HalfCheetah-v5" in capsys.readouterr().err
 
@@ -62,10 +109,10 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
     assert "waits for the MuJoCo T2 rule" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()  # nothing trained, nothing written
     specs, _ = figure3_grid(get_profile("reduced"))
-    waiting = {(s.env_id, s.algo) for s in specs if waits_for_t2_rule("reduced", s.env_id,
-                                                                      s.algo)}
-    assert waiting == {(env, "drl-eg") for env in ("Hopper-v5", "Walker2d-v5",
-                                                   "HalfCheetah-v5", "Ant-v5")}
+    waiting = {(s.env_id, s.algo) for s in specs if waits_for_t2_rule("reduced", s.env_id, s.algo)}
+    assert waiting == {
+        (env, "drl-eg") for env in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
+    }
     assert not waits_for_t2_rule("quick", "Ant-v5", "drl-eg")  # quick keeps the spacing rule
 
 
@@ -94,8 +141,9 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
         # a ruled run is the ablation's run of that setting: same spec, same run id
         assert ids(ant(figure3_grid(reduced)[0])[:3]) == ids(sweep)
         assert ids(ant(rlfd_grid(reduced)[0])[:3]) == ids(sweep)
-        assert {s.hyperparameters["guide_threshold"]
-                for s in ant(figure4_grid(reduced))} == {threshold}
+        assert {s.hyperparameters["guide_threshold"] for s in ant(figure4_grid(reduced))} == {
+            threshold
+        }
     assert ant(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # its T2 is unused
     assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == grid[0]
     assert not experiments.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
@@ -117,10 +165,15 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     assert rows["drl-eg"]["source"].startswith("none yet: waits for the MuJoCo T2 rule")
     assert rows["drl-eg-gmm"]["source"].startswith("unused")
     monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "16x")
-    run = SimpleNamespace(spec={"algo": "drl-eg", "env_id": "Ant-v5", "seed": 0,
-                                "hyperparameters": {"guide_threshold": 36.3,
-                                                    "guide_noise_std": 0.1}},
-                          guided_share=0.25)
+    run = SimpleNamespace(
+        spec={
+            "algo": "drl-eg",
+            "env_id": "Ant-v5",
+            "seed": 0,
+            "hyperparameters": {"guide_threshold": 36.3, "guide_noise_std": 0.1},
+        },
+        guided_share=0.25,
+    )
     rows = {g["algo"]: g for g in guidance_settings("reduced", [run], specs)}
     assert rows["drl-eg"]["t2"] == [36.3] and rows["drl-eg"]["sigma"] == [0.1]
     assert rows["drl-eg"]["guided_share"] == [0.25]
@@ -143,8 +196,7 @@ def test_guided_share_weighs_each_points_fraction_by_the_steps_it_covers(tmp_pat
 
     from replicate.runner import Run
 
-    curve = pd.DataFrame({"step": [0, 100, 200, 250],
-                          "guided_fraction": [math.nan, 0.5, 0.0, 1.0]})
+    curve = pd.DataFrame({"step": [0, 100, 200, 250], "guided_fraction": [math.nan, 0.5, 0.0, 1.0]})
     assert Run(tmp_path, {}, curve, {}).guided_share == (50 + 0 + 50) / 250
     ppo = curve.assign(guided_fraction=math.nan)  # an algorithm without a guider
     assert math.isnan(Run(tmp_path, {}, ppo, {}).guided_share)
@@ -159,14 +211,23 @@ def test_an_ant_fig4_below_the_papers_budget_says_what_it_can_show(tmp_path):
     from replicate.runner import Run
 
     def run(algo: str, seed: int, end: float) -> Run:
-        curve = pd.DataFrame({"step": [0, 250_000, 500_000], "return_mean": [0.0, end / 2, end],
-                              "returns": ["[0.0]"] * 3, "guided_fraction": [np.nan, 0.1, 0.1],
-                              "train_return": [np.nan] * 3})
+        curve = pd.DataFrame(
+            {
+                "step": [0, 250_000, 500_000],
+                "return_mean": [0.0, end / 2, end],
+                "returns": ["[0.0]"] * 3,
+                "guided_fraction": [np.nan, 0.1, 0.1],
+                "train_return": [np.nan] * 3,
+            }
+        )
         spec = {"env_id": "Ant-v5", "algo": algo, "seed": seed, "total_steps": 500_000}
         return Run(tmp_path / f"{algo}-{seed}", spec, curve, {"git_revision": "abc"})
 
-    runs = [run(algo, seed, end + seed) for seed in range(4)
-            for algo, end in (("sac", 900.0), ("drl-eg", 1200.0))]
+    runs = [
+        run(algo, seed, end + seed)
+        for seed in range(4)
+        for algo, end in (("sac", 900.0), ("drl-eg", 1200.0))
+    ]
     out = tmp_path / "fig4"
     write_figure4_report(GridOutcome(runs, [], None), get_profile("reduced"), "Ant-v5", out)
     summary = json.loads((out / "summary.json").read_text())

@@ -8,7 +8,14 @@ from replicate.profiles import get_profile
 
 def test_steps_label_shortens_thousands_and_millions():
     assert [steps_label(v) for v in (0, 500, 2500, 50_000, 200_000, 1_000_000, 1_500_000)] == [
-        "0", "500", "2.5k", "50k", "200k", "1M", "1.5M"]
+        "0",
+        "500",
+        "2.5k",
+        "50k",
+        "200k",
+        "1M",
+        "1.5M",
+    ]
     assert steps_label(-0.0) == "0" and steps_label(1e-11) == "0"
 
 
@@ -25,9 +32,17 @@ def test_panels_follow_the_profile_order_with_unknown_envs_last():
     assert order[0] == "MountainCarContinuous-v0" and order[-1] == "Ant-v5"  # the paper's Table 1
     bands_envs = ["Ant-v5", "Hopper-v5", "Ant-v5", "Other-v0", "MountainCarContinuous-v0"]
     assert panel_order(bands_envs, order) == [
-        "MountainCarContinuous-v0", "Hopper-v5", "Ant-v5", "Other-v0"]
-    assert panel_order(bands_envs, []) == ["Ant-v5", "Hopper-v5", "Other-v0",
-                                          "MountainCarContinuous-v0"]
+        "MountainCarContinuous-v0",
+        "Hopper-v5",
+        "Ant-v5",
+        "Other-v0",
+    ]
+    assert panel_order(bands_envs, []) == [
+        "Ant-v5",
+        "Hopper-v5",
+        "Other-v0",
+        "MountainCarContinuous-v0",
+    ]
 
 
 # --- one palette, shared legends outside the curves, per-seed lines, readable T2 ticks ---
@@ -40,8 +55,16 @@ import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
 from replicate import ablation, figures, rlfd  # noqa: E402
-from replicate.figures import (ALGO_COLORS, CurveBand, aggregate_png, algo_color,  # noqa: E402
-                               learning_curves_png, paired_curves_png, png_panels, seed_note)
+from replicate.figures import (  # noqa: E402
+    ALGO_COLORS,
+    CurveBand,
+    aggregate_png,
+    algo_color,
+    learning_curves_png,
+    paired_curves_png,
+    png_panels,
+    seed_note,
+)
 
 
 @pytest.fixture
@@ -82,8 +105,19 @@ def bands(algos, envs, seeds=3):
         for algo in algos:
             per_seed = rng.normal(size=(seeds, len(steps))).cumsum(axis=1)
             mean = per_seed.mean(axis=0)
-            out.append(CurveBand(algo, env_id, steps, mean, mean - 1, mean + 1, seeds, per_seed,
-                                 list(range(seeds))))
+            out.append(
+                CurveBand(
+                    algo,
+                    env_id,
+                    steps,
+                    mean,
+                    mean - 1,
+                    mean + 1,
+                    seeds,
+                    per_seed,
+                    list(range(seeds)),
+                )
+            )
     return out
 
 
@@ -97,16 +131,26 @@ def test_an_algorithm_has_one_colour_in_every_figure(drawn):
     learning_curves_png(bands(["drl-eg", "sac", "ppo"], ["A-v0", "B-v0", "C-v0"]), {}, "Fig. 3")
     learning_curves_png(bands(["sac", "ddpgfd", "drl-eg", "drl-eg-gmm"], ["A-v0"]), {}, "other")
     steps = np.arange(5.0)
-    paired_curves_png([(s, {"sac": (steps, steps), "drl-eg": (steps, -steps)}) for s in range(4)],
-                      "Fig. 4")
+    paired_curves_png(
+        [(s, {"sac": (steps, steps), "drl-eg": (steps, -steps)}) for s in range(4)], "Fig. 4"
+    )
     taus = np.linspace(0, 1, 5)
     profile = (taus, taus, taus)
-    aggregate_png({"ppo": (0.5, 0.4, 0.6), "drl-eg": (0.7, 0.6, 0.8)}, taus,
-                  {"ppo": profile, "drl-eg": profile})
-    rlfd._figure({"iqm": {a: [0.5, 0.4, 0.6] for a in ("ibrl", "sac", "drl-eg", "rlpd")},
-                  "taus": taus, "profiles": {a: profile for a in ("ibrl", "sac", "drl-eg", "rlpd")},
-                  "efficiency": {a: (rlfd.CURVE_FRACTIONS,) * 3
-                                 for a in ("ibrl", "sac", "drl-eg", "rlpd")}})
+    aggregate_png(
+        {"ppo": (0.5, 0.4, 0.6), "drl-eg": (0.7, 0.6, 0.8)},
+        taus,
+        {"ppo": profile, "drl-eg": profile},
+    )
+    rlfd._figure(
+        {
+            "iqm": {a: [0.5, 0.4, 0.6] for a in ("ibrl", "sac", "drl-eg", "rlpd")},
+            "taus": taus,
+            "profiles": {a: profile for a in ("ibrl", "sac", "drl-eg", "rlpd")},
+            "efficiency": {
+                a: (rlfd.CURVE_FRACTIONS,) * 3 for a in ("ibrl", "sac", "drl-eg", "rlpd")
+            },
+        }
+    )
     seen = 0
     algo_rgbs = {mcolors.to_rgb(c) for c in ALGO_COLORS.values()}
     for fig in drawn:
@@ -133,8 +177,7 @@ def test_fig3_is_a_grid_with_one_legend_outside_the_curves_and_a_line_per_seed(d
     assert_legend_outside_the_curves(fig)
     # the legend sits in the grid's free cell; each panel: 2 means + 2 x 4 seeds (+ demos)
     assert [len(ax.get_lines()) for ax in panels] == [11, 10, 10, 10, 10]
-    assert {"mean over seeds", "one seed", "demonstrations' mean return"} <= set(
-        legend_colors(fig))
+    assert {"mean over seeds", "one seed", "demonstrations' mean return"} <= set(legend_colors(fig))
     assert panels[0].get_title().endswith("4 seeds each")
     assert panels[0].xaxis.get_major_formatter()(1_000_000, 0) == "1M"
     # an even count: the legend goes below the panels
@@ -144,8 +187,10 @@ def test_fig3_is_a_grid_with_one_legend_outside_the_curves_and_a_line_per_seed(d
 
 def test_fig4_is_a_grid_of_seeds_with_one_legend(drawn):
     steps = np.arange(5.0)
-    paired_curves_png([(s, {"sac": (steps, steps, steps), "drl-eg": (steps, -steps, steps)})
-                       for s in range(4)], "Fig. 4")
+    paired_curves_png(
+        [(s, {"sac": (steps, steps, steps), "drl-eg": (steps, -steps, steps)}) for s in range(4)],
+        "Fig. 4",
+    )
     fig = drawn[0]
     panels = [ax for ax in fig.axes if ax.axison]
     assert len({round(ax.get_position().x0, 3) for ax in panels}) == 2 and len(panels) == 4
@@ -167,7 +212,8 @@ def test_seed_note_names_the_usual_count_and_the_exceptions():
     assert seed_note({"sac": 5, "ppo": 5}) == "5 seeds each"
     assert seed_note({"sac": 1}) == "1 seed"
     assert seed_note({"sac": 3, "ppo": 5, "ppo-bc": 5, "drl-eg": 3, "ddpgfd": 3}) == (
-        "3 seeds; ppo, ppo-bc: 5")
+        "3 seeds; ppo, ppo-bc: 5"
+    )
 
 
 def test_summarise_keeps_each_seeds_curve_under_the_band():
@@ -175,11 +221,16 @@ def test_summarise_keeps_each_seeds_curve_under_the_band():
 
     def run(seed, returns):
         curve = pd.DataFrame({"step": [0, 100, 200], "return_mean": returns})
-        return types.SimpleNamespace(spec={"env_id": "A-v0", "algo": "drl-eg-gmm", "seed": seed},
-                                     curve=curve)
+        return types.SimpleNamespace(
+            spec={"env_id": "A-v0", "algo": "drl-eg-gmm", "seed": seed}, curve=curve
+        )
 
-    bimodal = [run(0, [0, -50, -86]), run(1, [0, 40, 93]), run(2, [0, -60, -97]),
-               run(3, [0, 20, 49])]
+    bimodal = [
+        run(0, [0, -50, -86]),
+        run(1, [0, 40, 93]),
+        run(2, [0, -60, -97]),
+        run(3, [0, 20, 49]),
+    ]
     (band,), _ = summarise(bimodal)
     assert band.seeds == [0, 1, 2, 3]
     assert band.per_seed[:, -1].tolist() == [-86, 93, -97, 49]
@@ -205,7 +256,6 @@ def test_the_ablation_t2_ticks_do_not_overlap(drawn):
 def test_published_sac_is_drawn_in_two_groups():
     """The same algorithm as ours (V-network SAC) and modern twin-Q SAC get markers and
     legend entries of their own."""
-    import matplotlib
 
     from replicate import figures
 
@@ -216,12 +266,13 @@ def test_published_sac_is_drawn_in_two_groups():
         labels.extend(names)
         return real(fig, handles, names, *args, **kwargs)
 
-    points = {"A-v0": [(100, 10.0, float("nan"), "V-network SAC"),
-                       (100, 20.0, 2.0, "twin-Q SAC")]}
+    points = {"A-v0": [(100, 10.0, float("nan"), "V-network SAC"), (100, 20.0, 2.0, "twin-Q SAC")]}
     figures.shared_legend = record
     try:
         learning_curves_png(bands(["sac"], ["A-v0"]), {}, "Fig. 3", points)
     finally:
         figures.shared_legend = real
     assert [label for label in labels if label.startswith("published")] == [
-        figures.PUBLISHED_LABELS["V-network SAC"], figures.PUBLISHED_LABELS["twin-Q SAC"]]
+        figures.PUBLISHED_LABELS["V-network SAC"],
+        figures.PUBLISHED_LABELS["twin-Q SAC"],
+    ]

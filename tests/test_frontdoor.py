@@ -59,14 +59,17 @@ def test_a_missing_torn_or_foreign_summary_marks_that_report_unavailable(reports
     assert 'href="reduced/fig3/index.html#claim-2">inconclusive' in page or "reduced" in page
 
 
-def test_report_command_writes_it_and_exits_0_over_a_torn_summary(reports_copy, monkeypatch,
-                                                                   capsys):
+def test_report_command_writes_it_and_exits_0_over_a_torn_summary(
+    reports_copy, monkeypatch, capsys
+):
     from replicate.cli import main
 
     (reports_copy / "rlfd" / "summary.json").write_text("{")
     store = reports_copy.parent / "empty-store"
     store.mkdir()
-    assert main(["report", "--profile", "quick", "--store", str(store), "--out",
-                 str(reports_copy)]) == 0
+    assert (
+        main(["report", "--profile", "quick", "--store", str(store), "--out", str(reports_copy)])
+        == 0
+    )
     assert "front door:" in capsys.readouterr().out
     assert "unavailable" in (reports_copy / "index.html").read_text()

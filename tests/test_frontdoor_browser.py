@@ -28,7 +28,8 @@ def test_front_door_renders_with_every_verdict_on_one_screen():
         assert top < 1000
         for image in driver.find_elements(By.TAG_NAME, "img"):
             assert driver.execute_script(
-                "return arguments[0].complete && arguments[0].naturalWidth > 0", image)
+                "return arguments[0].complete && arguments[0].naturalWidth > 0", image
+            )
         errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
         assert not errors, errors
     finally:

@@ -35,8 +35,9 @@ class ConstantImitation:
 
 def rigged_agent(il_action: float) -> IBRLAgent:
     config = IBRLConfig(hidden_sizes=(8, 8))
-    agent = IBRLAgent(2, 1, -np.ones(1), np.ones(1), config, seed=0,
-                      imitation=ConstantImitation(il_action))
+    agent = IBRLAgent(
+        2, 1, -np.ones(1), np.ones(1), config, seed=0, imitation=ConstantImitation(il_action)
+    )
     q_linear_in_action(agent.critics_target, obs_dim=2, slope=SLOPE)
     return agent
 
@@ -79,8 +80,7 @@ def test_target_bootstraps_from_the_higher_valued_proposal(il_action, imitation_
     with torch.no_grad():
         a_rl, log_prob = agent.policy.sample(next_obs, noise=noise)
     chosen = torch.full((6,), il_action) if imitation_wins else a_rl[:, 0]
-    assert value.tolist() == pytest.approx((SLOPE * chosen - alpha * log_prob).tolist(),
-                                           abs=1e-5)
+    assert value.tolist() == pytest.approx((SLOPE * chosen - alpha * log_prob).tolist(), abs=1e-5)
     # and the update feeds mu(s') of each sampled transition to it
     inputs = agent.target_inputs(type("B", (), {"next_observations": next_obs})())
     assert inputs["next_il_actions"].tolist() == il.tolist()
@@ -88,9 +88,11 @@ def test_target_bootstraps_from_the_higher_valued_proposal(il_action, imitation_
 
 def test_functional_imitation_is_the_nearest_demonstration_action_without_noise():
     rng = np.random.default_rng(0)
-    demos = Demonstrations(rng.normal(size=(300, 3)).astype(np.float32),
-                           rng.uniform(-2, 2, (300, 2)).astype(np.float32),
-                           {"expert_return_mean": 1.0})
+    demos = Demonstrations(
+        rng.normal(size=(300, 3)).astype(np.float32),
+        rng.uniform(-2, 2, (300, 2)).astype(np.float32),
+        {"expert_return_mean": 1.0},
+    )
     policy = ImitationPolicy(IBRLConfig(), demos, -np.ones(2), np.ones(2), seed=0)
     queries = rng.normal(size=(50, 3))
     actions = policy(queries)
@@ -109,8 +111,9 @@ def test_ibrl_trains_deterministically_and_preloads_the_demonstrations():
     assert np.array_equal(buffer.observations[:1000], demos.observations)
     # both proposals are executed: the untrained critics prefer one or the other
     assert 0.0 < first[1].guided_fraction < 1.0
-    bc, _ = train_tiny("ibrl", seed=3, steps=200, imitation="bc", bc_steps=20, bc_hidden=(8,),
-                       preload_demos=False)
+    bc, _ = train_tiny(
+        "ibrl", seed=3, steps=200, imitation="bc", bc_steps=20, bc_hidden=(8,), preload_demos=False
+    )
     assert len(bc) == 2 and np.isfinite(bc[-1].mean_return)
 
 
@@ -126,9 +129,12 @@ def test_killed_ibrl_run_resumes_onto_the_uninterrupted_curve(tmp_path):
     checkpoint = tmp_path / "checkpoint.pt"
     with pytest.raises(Killed):
         run("ibrl", HOPPER, 600, checkpoint_path=checkpoint, kill_at=450, **overrides)
-    resumed, resumed_buffer, resumed_from = run("ibrl", HOPPER, 600,
-                                                checkpoint_path=checkpoint, **overrides)
+    resumed, resumed_buffer, resumed_from = run(
+        "ibrl", HOPPER, 600, checkpoint_path=checkpoint, **overrides
+    )
     assert 150 < resumed_from < 450
     assert curve_signature(resumed) == curve_signature(reference)
-    assert np.array_equal(resumed_buffer.actions[:len(reference_buffer)],
-                          reference_buffer.actions[:len(reference_buffer)])
+    assert np.array_equal(
+        resumed_buffer.actions[: len(reference_buffer)],
+        reference_buffer.actions[: len(reference_buffer)],
+    )

@@ -4,8 +4,15 @@ import pytest
 from baselines.common.checkpoint import load_checkpoint
 from baselines.common.evaluation import evaluate
 from baselines.ibrl import ImitationPolicy
-from baselines.jsrl import (CURRICULUM_SEED_OFFSET, JSRLConfig, JumpStartExplorer, advances,
-                            guide_steps, jump_start_returns, measure_horizon)
+from baselines.jsrl import (
+    CURRICULUM_SEED_OFFSET,
+    JSRLConfig,
+    JumpStartExplorer,
+    advances,
+    guide_steps,
+    jump_start_returns,
+    measure_horizon,
+)
 from baselines.sac_twin_q import TwinQSACAgent
 from envs import make_env
 from replicate.demos import default_demo_path, load_demos
@@ -21,11 +28,17 @@ class ConstantGuide:
 
 
 def explorer(horizon: int = 5, **overrides) -> JumpStartExplorer:
-    config = JSRLConfig(hidden_sizes=(8, 8), curriculum_stages=5, tolerance=0.05,
-                        curriculum_eval="learner", **overrides)
+    config = JSRLConfig(
+        hidden_sizes=(8, 8),
+        curriculum_stages=5,
+        tolerance=0.05,
+        curriculum_eval="learner",
+        **overrides,
+    )
     agent = TwinQSACAgent(2, 1, -np.ones(1), np.ones(1), config, seed=0)
-    return JumpStartExplorer(agent, ConstantGuide(), config, curriculum_env=None,
-                             horizon=horizon, eval_episodes=1)
+    return JumpStartExplorer(
+        agent, ConstantGuide(), config, curriculum_env=None, horizon=horizon, eval_episodes=1
+    )
 
 
 def test_guide_hands_over_to_the_learner_at_step_h_of_every_episode():
@@ -77,7 +90,7 @@ def test_jump_start_evaluation_and_horizon_follow_the_guide_then_the_learner():
     assert jump_start_returns(make_env(MOUNTAINCAR, seed=5), guide, idle, 0, 2) == [0.0, 0.0]
     # guided for 10 steps of +-0.5 (cost 0.1 a^2 each), then idle: the learner took step 10
     ten = jump_start_returns(make_env(MOUNTAINCAR, seed=5), guide, idle, 10, 1)[0]
-    assert ten == pytest.approx(-10 * 0.1 * 0.5 ** 2)
+    assert ten == pytest.approx(-10 * 0.1 * 0.5**2)
 
 
 def test_the_rule_judges_the_jump_started_policy_by_default():
@@ -85,11 +98,17 @@ def test_the_rule_judges_the_jump_started_policy_by_default():
     config = JSRLConfig(hidden_sizes=(8, 8))
     agent = TwinQSACAgent(2, 1, -np.ones(1), np.ones(1), config, seed=0)
     guide = ImitationPolicy(config, demos, -np.ones(1), np.ones(1), seed=0)
-    jsrl = JumpStartExplorer(agent, guide, config, make_env(MOUNTAINCAR, seed=3), horizon=40,
-                             eval_episodes=2)
+    jsrl = JumpStartExplorer(
+        agent, guide, config, make_env(MOUNTAINCAR, seed=3), horizon=40, eval_episodes=2
+    )
     jsrl.after_eval(12345.0)  # the learner's own return is not what the rule sees
-    expected = jump_start_returns(make_env(MOUNTAINCAR, seed=3), jsrl.act_guide,
-                                  lambda obs: agent.act(obs, deterministic=True), 40, 2)
+    expected = jump_start_returns(
+        make_env(MOUNTAINCAR, seed=3),
+        jsrl.act_guide,
+        lambda obs: agent.act(obs, deterministic=True),
+        40,
+        2,
+    )
     assert jsrl.best == pytest.approx(np.mean(expected)) and jsrl.best != 12345.0
 
 
@@ -106,8 +125,11 @@ def test_jsrl_trains_deterministically_and_moves_h_down():
     # MountainCar rule's +-0.5, the learner's are not
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     imitation = ImitationPolicy(JSRLConfig(), demos, -np.ones(1), np.ones(1), seed=0)
-    horizon = measure_horizon(make_env(MOUNTAINCAR, seed=2 + CURRICULUM_SEED_OFFSET),
-                              lambda obs: imitation(obs[None])[0], 5)
+    horizon = measure_horizon(
+        make_env(MOUNTAINCAR, seed=2 + CURRICULUM_SEED_OFFSET),
+        lambda obs: imitation(obs[None])[0],
+        5,
+    )
     is_guide = np.isin(np.round(buffer.actions[:600, 0], 6), [-0.5, 0.5])
     ends = [i + 1 for i in np.flatnonzero(buffer.terminated[:600])]
     starts = [0, *ends]
@@ -115,8 +137,8 @@ def test_jsrl_trains_deterministically_and_moves_h_down():
     for start, end in zip(starts, [*ends, 600]):
         h = horizon if start < 200 else round(horizon / 2)
         assert start + h < end  # the learner takes over within each of these episodes
-        assert is_guide[start:min(start + h, end)].all()
-        assert not is_guide[start + h:end].any()
+        assert is_guide[start : min(start + h, end)].all()
+        assert not is_guide[start + h : end].any()
 
 
 def test_config_refuses_an_unknown_curriculum_evaluation():
@@ -134,8 +156,9 @@ def test_killed_jsrl_run_resumes_with_its_h(tmp_path):
         run("jsrl", "Hopper-v5", 600, checkpoint_path=checkpoint, kill_at=450, **overrides)
     saved = load_checkpoint(checkpoint)["explorer"]
     assert saved["stage"] >= 1 and saved["h"] < saved["horizon"]
-    resumed, resumed_buffer, resumed_from = run("jsrl", "Hopper-v5", 600,
-                                                checkpoint_path=checkpoint, **overrides)
+    resumed, resumed_buffer, resumed_from = run(
+        "jsrl", "Hopper-v5", 600, checkpoint_path=checkpoint, **overrides
+    )
     assert 150 < resumed_from < 450
     assert curve_signature(resumed) == curve_signature(reference)
     assert np.array_equal(resumed_buffer.actions[:600], reference_buffer.actions[:600])

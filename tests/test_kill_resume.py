@@ -10,16 +10,43 @@ import time
 
 import pandas as pd
 
-TRAIN = [sys.executable, "-m", "replicate", "train", "--algo", "sac", "--env", "Hopper-v5",
-         "--steps", "1500", "--eval-interval", "300", "--eval-episodes", "1", "--seed", "2",
-         "--checkpoint-interval", "100", "--set", "hidden_sizes=(16,16)",
-         "--set", "batch_size=16", "--set", "learning_starts=100"]
+TRAIN = [
+    sys.executable,
+    "-m",
+    "replicate",
+    "train",
+    "--algo",
+    "sac",
+    "--env",
+    "Hopper-v5",
+    "--steps",
+    "1500",
+    "--eval-interval",
+    "300",
+    "--eval-episodes",
+    "1",
+    "--seed",
+    "2",
+    "--checkpoint-interval",
+    "100",
+    "--set",
+    "hidden_sizes=(16,16)",
+    "--set",
+    "batch_size=16",
+    "--set",
+    "learning_starts=100",
+]
 
 
 def train(store, **kwargs):
     env = dict(os.environ, MUJOCO_GL="disable")
-    return subprocess.Popen([*TRAIN, "--store", str(store)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, **kwargs)
+    return subprocess.Popen(
+        [*TRAIN, "--store", str(store)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        **kwargs,
+    )
 
 
 def the_run(store):

@@ -23,8 +23,11 @@ def tiny_spec(seed: int, steps: int = 300) -> RunSpec:
 
 
 def test_harness_errors_survive_pickling():
-    for error in (HarnessError("p", "f"), DemoError("bad file", "remake it"),
-                  RunLockedError("locked", "wait")):
+    for error in (
+        HarnessError("p", "f"),
+        DemoError("bad file", "remake it"),
+        RunLockedError("locked", "wait"),
+    ):
         copy = pickle.loads(pickle.dumps(error))
         assert type(copy) is type(error) and str(copy) == str(error)
         assert (copy.problem, copy.fix) == (error.problem, error.fix)
@@ -72,9 +75,13 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
                  checkpoint_interval=200)
     """)
     root = Path(__file__).resolve().parents[1]
-    main = subprocess.Popen([sys.executable, "-c", script], cwd=root,
-                            env=dict(os.environ, MUJOCO_GL="disable"),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    main = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=root,
+        env=dict(os.environ, MUJOCO_GL="disable"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and not list(tmp_path.glob(".partial-*/checkpoint.pt")):
         time.sleep(0.2)
@@ -87,8 +94,9 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
     while time.time() < deadline and any(_alive(pid) for pid in descendants):
         time.sleep(0.2)
     leftovers = [pid for pid in descendants if _alive(pid)]
-    names = [Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")[-90:]
-             for pid in leftovers]
+    names = [
+        Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")[-90:] for pid in leftovers
+    ]
     for pid in leftovers:
         os.kill(pid, signal.SIGKILL)
     assert not leftovers, f"processes outlived the killed figure process: {names}"
@@ -100,29 +108,36 @@ def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
 
     from replicate.experiments import estimate_minutes
 
-    def stored(name: str, rate: float, size: int | None, algo: str = "sac",
-               device: str = "cpu") -> None:
+    def stored(
+        name: str, rate: float, size: int | None, algo: str = "sac", device: str = "cpu"
+    ) -> None:
         run = tmp_path / name
         run.mkdir()
         (run / "spec.json").write_text(json.dumps({"algo": algo, "env_id": MOUNTAINCAR}))
         (run / "curve.csv").write_text("step,return_mean\n0,0\n")
         batch = {"size": size} if size else {}
-        (run / "provenance.json").write_text(json.dumps({"env_steps_per_s": rate,
-                                                         "batch": batch, "device": device}))
+        (run / "provenance.json").write_text(
+            json.dumps({"env_steps_per_s": rate, "batch": batch, "device": device})
+        )
 
     stored("sac__a", 30.0, 3)  # a member of a batch of 3: the process stepped 90/s
     stored("sac__b", 90.0, None)  # one run per process at 90/s
     stored("ppo__c", 1800.0, None, algo="ppo")
-    one = prepare(RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=0, total_steps=5400,
-                          eval_interval=1800))
+    one = prepare(
+        RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=0, total_steps=5400, eval_interval=1800)
+    )
     assert estimate_minutes([one], tmp_path, workers=1) == 1.0
-    batch = [prepare(RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=s, total_steps=5400,
-                             eval_interval=1800))
-             for s in range(2)]
+    batch = [
+        prepare(
+            RunSpec(algo="sac", env_id=MOUNTAINCAR, seed=s, total_steps=5400, eval_interval=1800)
+        )
+        for s in range(2)
+    ]
     assert estimate_minutes([batch], tmp_path, workers=1) == 2.0
     # an algorithm never timed steps as the env's slowest timed one: sac's 90/s, not ppo's
-    untimed = prepare(RunSpec(algo="sac-twin-q", env_id=MOUNTAINCAR, seed=0,
-                              total_steps=5400, eval_interval=1800))
+    untimed = prepare(
+        RunSpec(algo="sac-twin-q", env_id=MOUNTAINCAR, seed=0, total_steps=5400, eval_interval=1800)
+    )
     assert estimate_minutes([untimed], tmp_path, workers=1) == 1.0
     # a GPU batch's speed says nothing of a CPU process's: a CPU plan ignores it, a GPU one
     # takes it, and a CPU speed where no run was timed on a GPU (ppo's)
@@ -130,6 +145,7 @@ def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
     assert estimate_minutes([one], tmp_path, workers=1) == 1.0
     assert estimate_minutes([one], tmp_path, workers=1, on_gpu=True) == 0.1
     assert estimate_minutes([untimed], tmp_path, workers=1, on_gpu=True) == 0.1
-    ppo = prepare(RunSpec(algo="ppo", env_id=MOUNTAINCAR, seed=0, total_steps=5400,
-                          eval_interval=1800))
+    ppo = prepare(
+        RunSpec(algo="ppo", env_id=MOUNTAINCAR, seed=0, total_steps=5400, eval_interval=1800)
+    )
     assert estimate_minutes([ppo], tmp_path, workers=1, on_gpu=True) == 0.05

@@ -6,8 +6,13 @@ import math
 import pytest
 
 from envs import PAPER_ENV_IDS
-from replicate.experiments import (FIG3_ALGORITHMS, algorithm_overrides, drl_eg_env_defaults,
-                                   figure3_grid, get_profile)
+from replicate.experiments import (
+    FIG3_ALGORITHMS,
+    algorithm_overrides,
+    drl_eg_env_defaults,
+    figure3_grid,
+    get_profile,
+)
 from tests.helpers import train_tiny
 
 

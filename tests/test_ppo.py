@@ -5,9 +5,8 @@ import torch
 from baselines.common.context import TrainContext
 from baselines.common.evaluation import evaluate
 from baselines.common.normalization import RunningMeanStd
-from baselines.ppo import clipped_surrogate_loss, gae_advantages
+from baselines.ppo import build_agent, clipped_surrogate_loss, gae_advantages
 from baselines.ppo_bc import PPOBCConfig, bc_loss, behaviour_clone
-from baselines.ppo import build_agent
 from envs import make_env
 from replicate.demos import default_demo_path, load_demos
 from tests.helpers import MOUNTAINCAR, train_tiny
@@ -98,7 +97,8 @@ def test_one_observation_statistics_update_is_bitwise_the_batch_formula():
         mean, var, n = b.mean(axis=0), b.var(axis=0), 1
         delta, total = mean - batch_path.mean, batch_path.count + n
         batch_path.mean = batch_path.mean + delta * n / total
-        batch_path.var = (batch_path.var * batch_path.count + var * n
-                          + delta**2 * batch_path.count * n / total) / total
+        batch_path.var = (
+            batch_path.var * batch_path.count + var * n + delta**2 * batch_path.count * n / total
+        ) / total
         batch_path.count = total
     assert np.array_equal(fast.mean, batch_path.mean) and np.array_equal(fast.var, batch_path.var)

@@ -17,13 +17,29 @@ def test_revision_is_dirty_for_code_changes_only(tmp_path, monkeypatch):
         (tmp_path / name).write_text("0\n")
     _git(tmp_path, "init", "-q")
     _git(tmp_path, "add", ".")
-    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false",
-         "commit", "-qm", "one")
-    head = subprocess.run(["git", "-C", str(tmp_path), "rev-parse", "HEAD"], check=True,
-                          capture_output=True, text=True).stdout.strip()
+    _git(
+        tmp_path,
+        "-c",
+        "user.name=t",
+        "-c",
+        "user.email=t@t",
+        "-c",
+        "commit.gpgsign=false",
+        "commit",
+        "-qm",
+        "one",
+    )
+    head = subprocess.run(
+        ["git", "-C", str(tmp_path), "rev-parse", "HEAD"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
     (tmp_path / "runs/r/curve.csv").write_text("1\n")
     (tmp_path / "reports/fig3/summary.json").write_text("1\n")
     (tmp_path / "replicate/untracked.py").write_text("1\n")
-    assert revision_at(tmp_path / "replicate") == head  # asked from a subfolder, as the package does
+    assert (
+        revision_at(tmp_path / "replicate") == head
+    )  # asked from a subfolder, as the package does
     (tmp_path / "replicate/code.py").write_text("1\n")
     assert revision_at(tmp_path / "runs") == head + "+dirty"

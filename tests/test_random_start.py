@@ -31,17 +31,24 @@ def _committed_by_algo() -> list[Path]:
 def test_committed_runs_keep_their_addresses(run_dir):
     resolved = json.loads((run_dir / "spec.json").read_text())
     assert "random_start_steps" not in resolved["hyperparameters"]
-    spec = RunSpec(resolved["algo"], resolved["env_id"], resolved["seed"],
-                   resolved["total_steps"], resolved["eval_interval"],
-                   resolved["eval_episodes"], resolved["hyperparameters"],
-                   resolved.get("demos_path"))
+    spec = RunSpec(
+        resolved["algo"],
+        resolved["env_id"],
+        resolved["seed"],
+        resolved["total_steps"],
+        resolved["eval_interval"],
+        resolved["eval_episodes"],
+        resolved["hyperparameters"],
+        resolved.get("demos_path"),
+    )
     assert prepare(spec).run_id == run_dir.name
 
 
 def test_a_random_start_changes_the_address_and_is_recorded():
     plain = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 200, 1, dict(TINY)))
-    random = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 200, 1,
-                             dict(TINY, random_start_steps=150)))
+    random = prepare(
+        RunSpec("sac", MOUNTAINCAR, 0, 400, 200, 1, dict(TINY, random_start_steps=150))
+    )
     assert plain.run_id != random.run_id
     assert random.resolved["hyperparameters"]["random_start_steps"] == 150
 
@@ -51,8 +58,10 @@ def test_one_run_takes_its_seeds_uniform_actions_first():
     low, high = np.array([-1.0]), np.array([1.0])
     expected = np.stack([random_start_action(3, step, low, high) for step in range(1, 151)])
     np.testing.assert_array_equal(buffer.actions[:150], expected)
-    assert not np.array_equal(buffer.actions[150:300], np.stack(
-        [random_start_action(3, step, low, high) for step in range(151, 301)]))
+    assert not np.array_equal(
+        buffer.actions[150:300],
+        np.stack([random_start_action(3, step, low, high) for step in range(151, 301)]),
+    )
 
 
 def test_a_seed_batch_member_draws_its_one_run_random_start(tmp_path, monkeypatch):

@@ -21,14 +21,28 @@ def ray_head():
     ray_cli = shutil.which("ray") or str(Path(sys.executable).parent / "ray")
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", MUJOCO_GL="disable")
     temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's sockets live here
-    start = [ray_cli, "start", "--head", "--node-ip-address", "127.0.0.1", "--port", PORT,
-             "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats",
-             "--temp-dir", temp_dir]
+    start = [
+        ray_cli,
+        "start",
+        "--head",
+        "--node-ip-address",
+        "127.0.0.1",
+        "--port",
+        PORT,
+        "--num-cpus",
+        "2",
+        "--include-dashboard",
+        "false",
+        "--disable-usage-stats",
+        "--temp-dir",
+        temp_dir,
+    ]
     subprocess.run(start, check=True, env=env, capture_output=True, timeout=120)
     try:
         yield f"127.0.0.1:{PORT}"
     finally:
         import ray
+
         ray.shutdown()
         subprocess.run([ray_cli, "stop", "--force"], env=env, capture_output=True, timeout=120)
         shutil.rmtree(temp_dir, ignore_errors=True)
@@ -36,8 +50,24 @@ def ray_head():
 
 def test_smoke_figure_on_a_local_ray_cluster(ray_head, smoke_fig3, tmp_path):
     store, out = tmp_path / "runs", tmp_path / "report"
-    assert main(["fig3", "--profile", "smoke", "--executor", "ray", "--address", ray_head,
-                 "--store", str(store), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "fig3",
+                "--profile",
+                "smoke",
+                "--executor",
+                "ray",
+                "--address",
+                ray_head,
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) and not summary["failed"]
     # the same runs as the local executor's, by address and by result

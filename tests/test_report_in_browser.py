@@ -24,8 +24,17 @@ WINDOW_WIDTH = 1400  # a laptop's browser window
 MIN_PANEL_PX = 400  # narrower, and a panel's curves, bands and ticks run together
 ROOT = Path(__file__).resolve().parents[1]
 
-SECTIONS = ("claims", "figure", "aggregate", "final-returns", "budgets", "demonstrations", "runs",
-            "provenance", "smoke-warning")
+SECTIONS = (
+    "claims",
+    "figure",
+    "aggregate",
+    "final-returns",
+    "budgets",
+    "demonstrations",
+    "runs",
+    "provenance",
+    "smoke-warning",
+)
 
 
 def chromium_driver() -> webdriver.Chrome:
@@ -37,10 +46,17 @@ def chromium_driver() -> webdriver.Chrome:
         pytest.skip(reason)
     options = webdriver.ChromeOptions()
     options.binary_location = browser
-    for flag in ("--headless=new", f"--window-size={WINDOW_WIDTH},1000", "--no-sandbox",
-                 "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync"):
+    for flag in (
+        "--headless=new",
+        f"--window-size={WINDOW_WIDTH},1000",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+    ):
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(executable_path=driver), options=options)
@@ -50,14 +66,35 @@ def chromium_driver() -> webdriver.Chrome:
 def smoke_reports(smoke_fig3, tmp_path_factory):
     table1, fig4 = tmp_path_factory.mktemp("table1"), tmp_path_factory.mktemp("fig4")
     assert main(["table1", "--out", str(table1)]) == 0
-    assert main(["fig4", "--profile", "smoke", "--env", "MountainCarContinuous-v0", "--seeds",
-                 "2", "--store", str(smoke_fig3[0]), "--out", str(fig4)]) == 0
+    assert (
+        main(
+            [
+                "fig4",
+                "--profile",
+                "smoke",
+                "--env",
+                "MountainCarContinuous-v0",
+                "--seeds",
+                "2",
+                "--store",
+                str(smoke_fig3[0]),
+                "--out",
+                str(fig4),
+            ]
+        )
+        == 0
+    )
     return {"fig3": smoke_fig3[1], "table1": table1, "fig4": fig4}
 
 
-@pytest.mark.parametrize("report, sections", [
-    ("fig3", SECTIONS), ("table1", ("dimensions", "demonstrations")),
-    ("fig4", ("figure", "pairs", "claims", "provenance", "smoke-warning"))])
+@pytest.mark.parametrize(
+    "report, sections",
+    [
+        ("fig3", SECTIONS),
+        ("table1", ("dimensions", "demonstrations")),
+        ("fig4", ("figure", "pairs", "claims", "provenance", "smoke-warning")),
+    ],
+)
 def test_report_renders_in_chromium(smoke_reports, report, sections):
     driver = chromium_driver()
     try:
@@ -67,7 +104,8 @@ def test_report_renders_in_chromium(smoke_reports, report, sections):
         images = driver.find_elements(By.TAG_NAME, "img")
         for image in images:
             loaded = driver.execute_script(
-                "return arguments[0].complete && arguments[0].naturalWidth > 0", image)
+                "return arguments[0].complete && arguments[0].naturalWidth > 0", image
+            )
             assert loaded, f"image {image.get_attribute('alt')!r} did not load"
         if report in ("fig3", "fig4"):
             assert len(images) >= 1
@@ -86,7 +124,9 @@ def rendered_figure(driver: webdriver.Chrome, html: Path) -> dict[str, Any]:
     figure = driver.execute_script(
         "const img = arguments[0], box = img.getBoundingClientRect();"
         "return {width: box.width, height: box.height, natural: img.naturalWidth,"
-        "        column: img.parentElement.clientWidth, window: window.innerWidth};", image)
+        "        column: img.parentElement.clientWidth, window: window.innerWidth};",
+        image,
+    )
     source = image.get_attribute("src")
     assert source.startswith("data:image/png;base64,")
     figure["panels"] = png_panels(base64.b64decode(source.split(",", 1)[1]))
@@ -98,17 +138,20 @@ def assert_readable(figure: dict[str, Any], panels: int, what: str) -> None:
     and 0.55 of that tall on the page, and two image pixels to each CSS pixel."""
     assert figure["window"] == WINDOW_WIDTH
     assert figure["width"] >= 0.9 * figure["column"], (
-        f"{what} is drawn {figure['width']:.0f} px wide in a {figure['column']} px column")
+        f"{what} is drawn {figure['width']:.0f} px wide in a {figure['column']} px column"
+    )
     assert len(figure["panels"]) == panels
     widths = [w * figure["width"] for _, _, w, _ in figure["panels"]]
     heights = [h * figure["height"] for _, _, _, h in figure["panels"]]
     assert min(widths) >= MIN_PANEL_PX, (
         f"{what}'s panels are {min(widths):.0f} px wide at a {WINDOW_WIDTH} px window, under "
-        f"{MIN_PANEL_PX}: their curves, bands and ticks run together")
+        f"{MIN_PANEL_PX}: their curves, bands and ticks run together"
+    )
     assert min(heights) >= 0.55 * MIN_PANEL_PX, f"{what}'s panels are {min(heights):.0f} px tall"
     assert figure["natural"] >= 1.98 * figure["width"], (
         f"{what} has {figure['natural']} image px for {figure['width']:.0f} CSS px: blurred at "
-        "2x pixel density")
+        "2x pixel density"
+    )
 
 
 @pytest.mark.parametrize("report, panels", [("fig3", 1), ("fig4", 2)])

@@ -20,8 +20,14 @@ def zero_action_demos(env_id):
     """Stand-in demonstrations for an env without committed ones (Hopper ends episodes
     quickly, which gives checkpoints early)."""
     act_dim = env_spec(env_id).act_dim
-    return rollout_demos(env_id, lambda obs: np.zeros(act_dim, np.float32), 200, seed=0,
-                         command="test", description="zero actions")
+    return rollout_demos(
+        env_id,
+        lambda obs: np.zeros(act_dim, np.float32),
+        200,
+        seed=0,
+        command="test",
+        description="zero actions",
+    )
 
 
 def run(algo, env_id, steps, checkpoint_path=None, kill_at=None, **overrides):
@@ -43,23 +49,35 @@ def run(algo, env_id, steps, checkpoint_path=None, kill_at=None, **overrides):
         if kill_at is not None and done >= kill_at:
             raise Killed
 
-    ctx = TrainContext(env_id=env_id, seed=7, total_steps=steps, eval_interval=150,
-                       eval_episodes=1, demos=demos, on_eval=points.append, on_steps=on_steps,
-                       checkpoint_path=checkpoint_path, checkpoint_interval=1)
+    ctx = TrainContext(
+        env_id=env_id,
+        seed=7,
+        total_steps=steps,
+        eval_interval=150,
+        eval_episodes=1,
+        demos=demos,
+        on_eval=points.append,
+        on_steps=on_steps,
+        checkpoint_path=checkpoint_path,
+        checkpoint_interval=1,
+    )
     buffer = algorithm.train(ctx, config)
     return points, buffer, first_report[0]
 
 
-@pytest.mark.parametrize("algo, env_id, overrides", [
-    ("sac", "Hopper-v5", {}),  # short episodes: several checkpoints before the kill
-    ("sac-twin-q", "Hopper-v5", {"hidden_sizes": (16, 16)}),
-    ("drl-eg", MOUNTAINCAR, {"guide_threshold": 0.5}),
-    ("drl-eg-twin-q", MOUNTAINCAR, {"guide_threshold": 0.5, "hidden_sizes": (16, 16)}),
-    ("ddpgfd", "Hopper-v5", {"hidden_sizes": (16, 16)}),
-    # checkpoints fall inside a rollout of 256 steps: the partial rollout is saved too
-    ("ppo", "Hopper-v5", {"rollout_steps": 256}),
-    ("ppo-bc", "Hopper-v5", {"rollout_steps": 256, "bc_steps": 50}),
-])
+@pytest.mark.parametrize(
+    "algo, env_id, overrides",
+    [
+        ("sac", "Hopper-v5", {}),  # short episodes: several checkpoints before the kill
+        ("sac-twin-q", "Hopper-v5", {"hidden_sizes": (16, 16)}),
+        ("drl-eg", MOUNTAINCAR, {"guide_threshold": 0.5}),
+        ("drl-eg-twin-q", MOUNTAINCAR, {"guide_threshold": 0.5, "hidden_sizes": (16, 16)}),
+        ("ddpgfd", "Hopper-v5", {"hidden_sizes": (16, 16)}),
+        # checkpoints fall inside a rollout of 256 steps: the partial rollout is saved too
+        ("ppo", "Hopper-v5", {"rollout_steps": 256}),
+        ("ppo-bc", "Hopper-v5", {"rollout_steps": 256, "bc_steps": 50}),
+    ],
+)
 def test_killed_run_resumes_onto_the_uninterrupted_curve(tmp_path, algo, env_id, overrides):
     steps = 600
     reference, reference_buffer, _ = run(algo, env_id, steps, **overrides)
@@ -67,8 +85,9 @@ def test_killed_run_resumes_onto_the_uninterrupted_curve(tmp_path, algo, env_id,
     with pytest.raises(Killed):
         run(algo, env_id, steps, checkpoint_path=checkpoint, kill_at=450, **overrides)
     assert checkpoint.is_file()
-    resumed, resumed_buffer, resumed_from = run(algo, env_id, steps, checkpoint_path=checkpoint,
-                                                **overrides)
+    resumed, resumed_buffer, resumed_from = run(
+        algo, env_id, steps, checkpoint_path=checkpoint, **overrides
+    )
     assert 150 < resumed_from < 450  # it did resume from a checkpoint, after some evaluations
     assert curve_signature(resumed) == curve_signature(reference)
     if reference_buffer is None:  # on-policy: nothing kept between rollouts

@@ -7,8 +7,14 @@ import pytest
 from replicate.cli import main
 from replicate.errors import HarnessError
 from replicate.profiles import get_profile
-from replicate.rlfd import (CURVE_FRACTIONS, SPARSE_TASKS, compare, normalised, random_return,
-                            rlfd_grid)
+from replicate.rlfd import (
+    CURVE_FRACTIONS,
+    SPARSE_TASKS,
+    compare,
+    normalised,
+    random_return,
+    rlfd_grid,
+)
 from replicate.runner import Run
 
 TASK = "MountainCarContinuous-v0"
@@ -19,13 +25,18 @@ def _run(algo: str, seed: int, returns: list[float]) -> Run:
     steps = np.linspace(0, 1000, len(returns)).astype(int)
     curve = pd.DataFrame({"step": steps, "return_mean": returns})
     provenance = {"demos": {"expert_return_mean": DEMO}}
-    return Run(__import__("pathlib").Path(f"{algo}__{TASK}__s{seed}"),
-               {"env_id": TASK, "algo": algo, "seed": seed}, curve, provenance)
+    return Run(
+        __import__("pathlib").Path(f"{algo}__{TASK}__s{seed}"),
+        {"env_id": TASK, "algo": algo, "seed": seed},
+        curve,
+        provenance,
+    )
 
 
 def test_normalised_scores_put_random_at_0_and_the_demonstrations_at_1():
-    np.testing.assert_allclose(normalised(np.array([-10.0, 40.0, 90.0]), -10.0, 90.0),
-                               [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(
+        normalised(np.array([-10.0, 40.0, 90.0]), -10.0, 90.0), [0.0, 0.5, 1.0]
+    )
     with pytest.raises(HarnessError, match="not above random"):
         normalised(np.array([1.0]), 5.0, 5.0)
 
@@ -58,8 +69,10 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
     assert improvement["sac"] == 1.0 and 0.0 < improvement["ibrl"] < 1.0
     # a method added later leaves the differences already there as they were (their
     # Holm-adjusted p-values grow with the family, as multiplicity control requires)
-    more = compare(runs + [_run("jsrl", s, [0, 70, 80 + s]) for s in range(4)],
-                   {TASK: (1000, 500)}, 0)
+    more = compare(
+        runs + [_run("jsrl", s, [0, 70, 80 + s]) for s in range(4)], {TASK: (1000, 500)}, 0
+    )
+
     def stated(verdicts):
         return [(v["quantity"]["quantity"], v["effect"], v["low"], v["high"]) for v in verdicts]
 
@@ -77,8 +90,10 @@ def test_each_profile_report_points_to_the_other_profiles_comparisons(tmp_path):
     assert quick["reduced"]["href"] == "../reduced/rlfd/index.html"
     assert quick["reduced"]["path"] == "reports/reduced/rlfd/index.html"
     assert SPARSE_TASKS[0] in quick["reduced"]["tasks"]
-    back = {o["name"]: o["href"] for o in
-            _other_profiles("reduced", tmp_path / "reports" / "reduced" / ".rlfd.rebuild")}
+    back = {
+        o["name"]: o["href"]
+        for o in _other_profiles("reduced", tmp_path / "reports" / "reduced" / ".rlfd.rebuild")
+    }
     assert back == {"quick": "../../rlfd/index.html", "paper": None}  # no link to nowhere
     # written elsewhere (--out), the other reports are not beside it: no link, only the path
     elsewhere = _other_profiles("reduced", tmp_path / "out" / "quick" / "rlfd")
@@ -88,8 +103,19 @@ def test_each_profile_report_points_to_the_other_profiles_comparisons(tmp_path):
 @pytest.mark.slow
 def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, capsys):
     store, out = tmp_path / "runs", tmp_path / "rlfd"
-    args = ["compare-rlfd", "--profile", "smoke", "--seeds", "2", "--store", str(store),
-            "--out", str(out), "--device", "cpu"]
+    args = [
+        "compare-rlfd",
+        "--profile",
+        "smoke",
+        "--seeds",
+        "2",
+        "--store",
+        str(store),
+        "--out",
+        str(out),
+        "--device",
+        "cpu",
+    ]
     assert main(args + ["--algos", "jsrl", "--dry-run"]) == 0
     assert "jsrl" in capsys.readouterr().out and not store.exists() and not out.exists()
     assert main(args + ["--algos", "jsrl"]) == 0  # one method first: the report says what lacks
@@ -98,8 +124,14 @@ def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, ca
     assert {s["algo"] for s in partial["skipped"]} == {"sac", "drl-eg", "ibrl", "rlpd", "ddpgfd"}
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert {c["algo"] for c in summary["cells"]} == {"sac", "drl-eg", "ibrl", "rlpd", "jsrl",
-                                                     "ddpgfd"}
+    assert {c["algo"] for c in summary["cells"]} == {
+        "sac",
+        "drl-eg",
+        "ibrl",
+        "rlpd",
+        "jsrl",
+        "ddpgfd",
+    }
     assert all(c["n"] == 2 for c in summary["cells"]) and not summary["skipped"]
     assert len(summary["verdicts"]) == 5
     html = (out / "index.html").read_text()

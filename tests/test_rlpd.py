@@ -13,9 +13,15 @@ from tests.test_resume import Killed, run
 def marked_demos(n: int = 30) -> Demonstrations:
     """Demonstration transitions with reward 1 and states 100 + i; online ones get reward 0."""
     obs = (100.0 + np.arange(n, dtype=np.float32))[:, None].repeat(2, 1)
-    return Demonstrations(obs, np.zeros((n, 1), np.float32), {"expert_return_mean": 1.0},
-                          rewards=np.ones(n, np.float32), next_observations=obs + 1,
-                          terminated=np.zeros(n, np.float32), truncated=np.zeros(n, np.float32))
+    return Demonstrations(
+        obs,
+        np.zeros((n, 1), np.float32),
+        {"expert_return_mean": 1.0},
+        rewards=np.ones(n, np.float32),
+        next_observations=obs + 1,
+        terminated=np.zeros(n, np.float32),
+        truncated=np.zeros(n, np.float32),
+    )
 
 
 def test_every_sample_is_exactly_half_demonstrations():
@@ -49,8 +55,9 @@ def test_layer_norm_ensemble_is_independent_normalised_mlps():
         for k, (w, b) in enumerate(zip(critics.weights, critics.biases)):
             x = F.linear(x, w[member].T, b[member, 0])
             if k < 2:
-                x = F.layer_norm(x, (8,), critics.norm_gains[k][member, 0],
-                                 critics.norm_biases[k][member, 0])
+                x = F.layer_norm(
+                    x, (8,), critics.norm_gains[k][member, 0], critics.norm_biases[k][member, 0]
+                )
                 x = torch.relu(x)
         assert torch.allclose(q[member], x.squeeze(-1), atol=1e-5)
     assert len({round(v, 4) for v in q[:, 0].tolist()}) == 4
@@ -91,8 +98,13 @@ def test_utd_critic_steps_on_fresh_subsets_then_one_actor_step():
     agent.critic_step = lambda **kw: subsets.append(kw["subset"].tolist()) or critic_step(**kw)
     agent.actor_step = lambda **kw: actor_steps.append(len(subsets)) or actor_step(**kw)
     g = torch.Generator().manual_seed(0)
-    batch = Batch(torch.randn(8, 2, generator=g), torch.rand(8, 1, generator=g) * 2 - 1,
-                  torch.randn(8, generator=g), torch.randn(8, 2, generator=g), torch.zeros(8))
+    batch = Batch(
+        torch.randn(8, 2, generator=g),
+        torch.rand(8, 1, generator=g) * 2 - 1,
+        torch.randn(8, generator=g),
+        torch.randn(8, 2, generator=g),
+        torch.zeros(8),
+    )
     for _ in range(6):  # two env steps' worth
         losses = agent.update(batch)
     assert actor_steps == [3, 6] and "policy_loss" in losses
@@ -114,7 +126,7 @@ def test_rlpd_trains_on_half_demonstration_minibatches_deterministically(monkeyp
     monkeypatch.setattr(SymmetricReplay, "sample", recorded)
     first, buffer = train_tiny("rlpd", seed=3, steps=300, utd=2)
     assert len(batches) == 2 * (300 - 100 + 1)  # utd minibatches per env step from step 100
-    online_states = {tuple(s) for s in buffer.observations[:len(buffer)].tolist()}
+    online_states = {tuple(s) for s in buffer.observations[: len(buffer)].tolist()}
     for rows in batches[::25]:
         assert all(tuple(s) in demo_states for s in rows[:8].tolist())
         assert all(tuple(s) in online_states for s in rows[8:].tolist())
@@ -126,6 +138,7 @@ def test_rlpd_trains_on_half_demonstration_minibatches_deterministically(monkeyp
 
 def test_rlpd_explains_missing_transitions(monkeypatch):
     from replicate import demos as demos_module
+
     original = demos_module.load_demos
 
     def pairs_only(path, env_id):
@@ -145,8 +158,9 @@ def test_killed_rlpd_run_resumes_onto_the_uninterrupted_curve(tmp_path):
     checkpoint = tmp_path / "checkpoint.pt"
     with pytest.raises(Killed):
         run("rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, kill_at=450, **overrides)
-    resumed, resumed_buffer, resumed_from = run("rlpd", "Hopper-v5", 600,
-                                                checkpoint_path=checkpoint, **overrides)
+    resumed, resumed_buffer, resumed_from = run(
+        "rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, **overrides
+    )
     assert 150 < resumed_from < 450
     assert curve_signature(resumed) == curve_signature(reference)
     assert np.array_equal(resumed_buffer.actions[:600], reference_buffer.actions[:600])

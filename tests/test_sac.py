@@ -5,17 +5,22 @@ import pytest
 import torch
 from torch import distributions as D
 
-from baselines.common.networks import TanhGaussianPolicy, soft_update, VNetwork
 from baselines.common.context import TrainContext
-from baselines.sac import SACConfig, build_agent, q_target, v_target
+from baselines.common.networks import TanhGaussianPolicy, VNetwork, soft_update
 from baselines.drl_eg import DRLEGConfig
+from baselines.sac import SACConfig, build_agent, q_target, v_target
 from tests.helpers import MOUNTAINCAR, TINY, train_tiny
 
 
 def test_q_target_hand_computed():
     # r = [1, 2], terminated = [0, 1], V'(s') = [10, 10], gamma = 0.99, scale = 5
-    y = q_target(torch.tensor([1.0, 2.0]), torch.tensor([0.0, 1.0]), torch.tensor([10.0, 10.0]),
-                 gamma=0.99, reward_scale=5.0)
+    y = q_target(
+        torch.tensor([1.0, 2.0]),
+        torch.tensor([0.0, 1.0]),
+        torch.tensor([10.0, 10.0]),
+        gamma=0.99,
+        reward_scale=5.0,
+    )
     assert torch.allclose(y, torch.tensor([5.0 + 9.9, 10.0]))
 
 
@@ -44,7 +49,8 @@ def test_tanh_gaussian_log_prob_matches_torch_distributions():
     bias = torch.tensor((high + low) / 2, dtype=torch.float32)
     reference = D.TransformedDistribution(
         D.Normal(mean, log_std.exp()),
-        [D.TanhTransform(cache_size=1), D.AffineTransform(bias, scale)])
+        [D.TanhTransform(cache_size=1), D.AffineTransform(bias, scale)],
+    )
     expected = reference.log_prob(action).sum(-1)
     assert torch.allclose(log_prob, expected, atol=1e-3)
     assert torch.all(action >= torch.tensor(low, dtype=torch.float32))
@@ -71,15 +77,16 @@ def test_same_seed_same_curve_on_cpu():
 
 
 def test_sac_and_drl_eg_start_from_identical_weights():
-    ctx = TrainContext(env_id=MOUNTAINCAR, seed=11, total_steps=1, eval_interval=1,
-                       eval_episodes=1)
+    ctx = TrainContext(env_id=MOUNTAINCAR, seed=11, total_steps=1, eval_interval=1, eval_episodes=1)
     sac = build_agent(ctx, SACConfig(**TINY))
     drl = build_agent(ctx, DRLEGConfig(**TINY))
     for net in ("q1", "q2", "v", "v_target", "policy"):
         a, b = getattr(sac, net).state_dict(), getattr(drl, net).state_dict()
         assert all(torch.equal(a[k], b[k]) for k in a)
-    other = build_agent(TrainContext(env_id=MOUNTAINCAR, seed=12, total_steps=1, eval_interval=1,
-                                     eval_episodes=1), SACConfig(**TINY))
+    other = build_agent(
+        TrainContext(env_id=MOUNTAINCAR, seed=12, total_steps=1, eval_interval=1, eval_episodes=1),
+        SACConfig(**TINY),
+    )
     assert not torch.equal(other.policy.trunk[0].weight, sac.policy.trunk[0].weight)
 
 
@@ -87,9 +94,15 @@ def test_update_reduces_q_loss_on_a_fixed_batch():
     ctx = TrainContext(env_id=MOUNTAINCAR, seed=0, total_steps=1, eval_interval=1, eval_episodes=1)
     agent = build_agent(ctx, SACConfig(hidden_sizes=(32, 32), learning_rate=1e-2))
     from baselines.common.buffer import Batch
+
     g = torch.Generator().manual_seed(0)
-    batch = Batch(torch.randn(64, 2, generator=g), torch.rand(64, 1, generator=g) * 2 - 1,
-                  torch.randn(64, generator=g), torch.randn(64, 2, generator=g), torch.zeros(64))
+    batch = Batch(
+        torch.randn(64, 2, generator=g),
+        torch.rand(64, 1, generator=g) * 2 - 1,
+        torch.randn(64, generator=g),
+        torch.randn(64, 2, generator=g),
+        torch.zeros(64),
+    )
     losses = [agent.update(batch)["q_loss"] for _ in range(60)]
     assert all(math.isfinite(x) for x in losses)
     assert losses[-1] < losses[0]
@@ -99,8 +112,11 @@ def test_training_returns_count_each_ended_episode_once_and_skip_unknown_starts(
     from baselines.common.evaluation import TrainingReturns
 
     returns = TrainingReturns(2)
-    for rewards, ended in (([1.0, 2.0], [False, False]), ([3.0, 4.0], [True, False]),
-                           ([5.0, 6.0], [True, True])):
+    for rewards, ended in (
+        ([1.0, 2.0], [False, False]),
+        ([3.0, 4.0], [True, False]),
+        ([5.0, 6.0], [True, True]),
+    ):
         returns.add(np.array(rewards), np.array(ended))
     assert returns.take().tolist() == [4.5, 12.0]  # env 0: episodes of 4 and 5
     assert np.isnan(returns.take()).all()  # nothing ended since

@@ -28,8 +28,13 @@ def _agent_and_batch(seed: int = 0):
     config = TwinQSACConfig(hidden_sizes=(32, 32), learning_rate=3e-3)
     agent = TwinQSACAgent(2, 1, -torch.ones(1).numpy(), torch.ones(1).numpy(), config, seed)
     g = torch.Generator().manual_seed(seed)
-    batch = Batch(torch.randn(64, 2, generator=g), torch.rand(64, 1, generator=g) * 2 - 1,
-                  torch.randn(64, generator=g), torch.randn(64, 2, generator=g), torch.zeros(64))
+    batch = Batch(
+        torch.randn(64, 2, generator=g),
+        torch.rand(64, 1, generator=g) * 2 - 1,
+        torch.randn(64, generator=g),
+        torch.randn(64, 2, generator=g),
+        torch.zeros(64),
+    )
     return agent, batch
 
 

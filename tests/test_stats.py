@@ -2,15 +2,26 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from replicate.stats import (holm, paired_mean_difference, seed_matched_difference,
-                             seeds_to_decide, t_mean, t_mean_columns, welch_mean_difference)
+from replicate.stats import (
+    holm,
+    paired_mean_difference,
+    seed_matched_difference,
+    seeds_to_decide,
+    t_mean,
+    t_mean_columns,
+    welch_mean_difference,
+)
 
 
 def test_t_mean_hand_computed_and_labelled():
     est = t_mean(np.array([1.0, 2.0, 3.0]), "x")
     # mean 2, sd 1, se 1/sqrt(3), t(0.975, 2) = 4.3027
     half = 4.302652729911275 / np.sqrt(3)
-    assert est.value == 2.0 and est.low == pytest.approx(2 - half) and est.high == pytest.approx(2 + half)
+    assert (
+        est.value == 2.0
+        and est.low == pytest.approx(2 - half)
+        and est.high == pytest.approx(2 + half)
+    )
     assert est.label == "95% t-interval, n = 3"
     assert est.test.startswith("one-sample t-test p = ")
 
@@ -83,6 +94,7 @@ def test_seeds_to_decide_grows_as_the_effect_shrinks():
 
 def test_hedges_g_hand_computed():
     from replicate.stats import hedges_g
+
     a, b = np.array([1.0, 2.0, 3.0]), np.array([3.0, 4.0, 5.0])
     # pooled sd 1, raw difference -2, correction 1 - 3 / (4 * 6 - 9) = 0.8
     assert hedges_g(a, b) == pytest.approx(-1.6)
@@ -91,6 +103,7 @@ def test_hedges_g_hand_computed():
 
 def test_iqm_and_profile_hand_computed():
     from replicate.stats import interquartile_mean, optimality_gap, score_profile
+
     scores = np.array([[0.0], [1.0], [2.0], [3.0], [4.0], [5.0], [6.0], [100.0]])
     assert interquartile_mean(scores) == pytest.approx(3.5)  # mean of 2, 3, 4, 5
     assert score_profile(scores, np.array([2.5, 50.0])).tolist() == [5 / 8, 1 / 8]
@@ -101,6 +114,7 @@ def test_iqm_is_scipys_trimmed_mean_to_the_last_bit():
     from scipy import stats
 
     from replicate.stats import interquartile_mean
+
     rng = np.random.default_rng(3)
     for runs, tasks in [(1, 1), (2, 1), (3, 2), (5, 3), (7, 4), (10, 1), (50, 5)]:
         scores = rng.normal(size=(runs, tasks)) * 10 ** rng.uniform(-3, 4)

@@ -55,7 +55,8 @@ def test_the_percentile_bootstrap_it_replaces_undercovers_at_three_seeds():
     trials = 400
     for _ in range(trials):
         x = rng.normal(size=3)
-        ci = stats.bootstrap((x,), np.mean, method="percentile", n_resamples=500,
-                             rng=rng).confidence_interval
+        ci = stats.bootstrap(
+            (x,), np.mean, method="percentile", n_resamples=500, rng=rng
+        ).confidence_interval
         hits += ci.low <= 0 <= ci.high
     assert hits / trials < 0.85

@@ -1,5 +1,6 @@
-import pytest
 import re
+
+import pytest
 
 from envs import ENV_SPECS
 from replicate.cli import main
@@ -10,14 +11,17 @@ from tests.helpers import MOUNTAINCAR
 def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
     assert main(["table1", "--out", str(tmp_path)]) == 0
     html = (tmp_path / "index.html").read_text()
-    ant = re.search(r"<code>Ant-v5</code></td><td>Ant-v2</td>\s*<td class=\"num\">(\d+) / (\d+)",
-                    html)
+    ant = re.search(
+        r"<code>Ant-v5</code></td><td>Ant-v2</td>\s*<td class=\"num\">(\d+) / (\d+)", html
+    )
     assert ant and ant.groups() == ("111", "105")
     meta = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR).metadata
-    shown = (f"{meta['expert_return_mean']:.1f} &plusmn; {meta['expert_return_std']:.1f} "
-             f"({meta['expert_episodes']})")
+    shown = (
+        f"{meta['expert_return_mean']:.1f} &plusmn; {meta['expert_return_std']:.1f} "
+        f"({meta['expert_episodes']})"
+    )
     assert "MountainCarContinuous-v0.v1.npz" in html and shown in html
-    demo_section = html[html.index('id="demonstrations"'):]
+    demo_section = html[html.index('id="demonstrations"') :]
     assert demo_section.count("<tr><td><code>") == len(ENV_SPECS)  # every env has a row
     assert "http://" not in html and "https://" not in html
 

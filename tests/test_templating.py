@@ -10,7 +10,9 @@ def test_seed_counts_are_singular_for_one():
 
 def test_report_templates_share_the_seeds_filter():
     environment = report_environment()
-    assert environment.from_string("{{ 1|seeds('paired ') }}, {{ 4|seeds }}").render() == \
-        "1 paired seed, 4 seeds"
+    assert (
+        environment.from_string("{{ 1|seeds('paired ') }}, {{ 4|seeds }}").render()
+        == "1 paired seed, 4 seeds"
+    )
     for name in ("fig3.html", "fig4.html", "ablation.html", "rlfd.html", "table1.html"):
         environment.get_template(name)  # parses, so every filter it names is registered

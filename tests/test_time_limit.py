@@ -25,27 +25,56 @@ def curve_without_wall_time(run_dir) -> pd.DataFrame:
     return pd.read_csv(run_dir / "curve.csv").drop(columns="wall_s")
 
 
-@pytest.mark.parametrize("text, seconds", [
-    ("90m", 5400), ("2h", 7200), ("1h30m", 5400), ("1h 30m", 5400), ("45s", 45),
-    ("5400", 5400), ("1.5h", 5400), ("0.25", 0.25), (" 2H ", 7200)])
+@pytest.mark.parametrize(
+    "text, seconds",
+    [
+        ("90m", 5400),
+        ("2h", 7200),
+        ("1h30m", 5400),
+        ("1h 30m", 5400),
+        ("45s", 45),
+        ("5400", 5400),
+        ("1.5h", 5400),
+        ("0.25", 0.25),
+        (" 2H ", 7200),
+    ],
+)
 def test_time_limits_read_as_seconds(text, seconds):
     assert parse_time_limit(text) == pytest.approx(seconds)
 
 
-@pytest.mark.parametrize("text", ["0", "0m", "-5m", "-1", "abc", "2x", "h", "", "1h-5m",
-                                  "2h30"])
+@pytest.mark.parametrize("text", ["0", "0m", "-5m", "-1", "abc", "2x", "h", "", "1h-5m", "2h30"])
 def test_unreadable_zero_or_negative_limits_are_refused(text):
     with pytest.raises(HarnessError):
         parse_time_limit(text)
 
 
-@pytest.mark.parametrize("command, limit", [
-    ("fig3", "0"), ("fig3", "-5m"), ("fig3", "soon"), ("fig4", "-1"),
-    ("ablate-threshold", "0s"), ("compare-rlfd", "-2h")])
+@pytest.mark.parametrize(
+    "command, limit",
+    [
+        ("fig3", "0"),
+        ("fig3", "-5m"),
+        ("fig3", "soon"),
+        ("fig4", "-1"),
+        ("ablate-threshold", "0s"),
+        ("compare-rlfd", "-2h"),
+    ],
+)
 def test_a_bad_limit_is_one_line_exit_2_and_trains_nothing(tmp_path, capsys, command, limit):
     store = tmp_path / "store"
-    code = main([command, "--profile", "smoke", "--store", str(store),
-                 "--out", str(tmp_path / "out"), "--time-limit", limit])
+    code = main(
+        [
+            command,
+            "--profile",
+            "smoke",
+            "--store",
+            str(store),
+            "--out",
+            str(tmp_path / "out"),
+            "--time-limit",
+            limit,
+        ]
+    )
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2
@@ -62,8 +91,11 @@ def test_every_figure_command_takes_the_limit(capsys):
 
 @pytest.mark.parametrize("algo", ["sac", "ppo", "ddpgfd"])  # the three one-run loops
 def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_path, algo):
-    hyper = ({"hidden_sizes": (16, 16)} if algo == "ppo"  # updates late: seconds, not more
-             else {**TINY, "learning_starts": 900})
+    hyper = (
+        {"hidden_sizes": (16, 16)}
+        if algo == "ppo"  # updates late: seconds, not more
+        else {**TINY, "learning_starts": 900}
+    )
     prepared = prepare(RunSpec(algo, MOUNTAINCAR, 0, 1200, 400, 1, hyper))
     reference = execute(prepared, tmp_path / "reference", device="cpu")
 
@@ -78,45 +110,69 @@ def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_
     assert not list(store.glob(".lock-*"))
 
     resumed = execute(prepared, store, device="cpu")
-    pd.testing.assert_frame_equal(curve_without_wall_time(resumed.path),
-                                  curve_without_wall_time(reference.path))
+    pd.testing.assert_frame_equal(
+        curve_without_wall_time(resumed.path), curve_without_wall_time(reference.path)
+    )
     parts = json.loads((resumed.path / SITTINGS_FILE).read_text())
     assert [p["resumed_from_step"] for p in parts] == [0, stop.value.step]
 
 
 def test_a_seed_batch_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curves(tmp_path):
-    specs = [RunSpec("drl-eg", MOUNTAINCAR, seed, 400, 200, 1, {**TINY, "learning_starts": 300})
-             for seed in (0, 1)]
+    specs = [
+        RunSpec("drl-eg", MOUNTAINCAR, seed, 400, 200, 1, {**TINY, "learning_starts": 300})
+        for seed in (0, 1)
+    ]
     reference = execute_batch([prepare(s) for s in specs], tmp_path / "reference", device="cpu")
 
     store = tmp_path / "limited"
     with pytest.raises(TimeLimitReached):
-        execute_batch([prepare(s) for s in specs], store, device="cpu",
-                      checkpoint_interval=0, deadline=time.time() - 1)
+        execute_batch(
+            [prepare(s) for s in specs],
+            store,
+            device="cpu",
+            checkpoint_interval=0,
+            deadline=time.time() - 1,
+        )
     (batch_dir,) = store.glob(".batch-*")
     assert (batch_dir / CHECKPOINT_FILE).is_file()
 
     resumed = execute_batch([prepare(s) for s in specs], store, device="cpu")
     assert [r.path.name for r in resumed.runs] == [r.path.name for r in reference.runs]
     for ours, theirs in zip(resumed.runs, reference.runs):
-        pd.testing.assert_frame_equal(curve_without_wall_time(ours.path),
-                                      curve_without_wall_time(theirs.path))
+        pd.testing.assert_frame_equal(
+            curve_without_wall_time(ours.path), curve_without_wall_time(theirs.path)
+        )
 
 
-def test_a_grid_past_its_limit_stops_with_one_line_naming_the_same_command(tmp_path, capsys,
-                                                                           monkeypatch):
+def test_a_grid_past_its_limit_stops_with_one_line_naming_the_same_command(
+    tmp_path, capsys, monkeypatch
+):
     # the limit counted as passed once the grid is prepared: no worker starts
     monkeypatch.setattr(experiments, "past", lambda deadline: deadline is not None)
     store = tmp_path / "store"
-    args = ["fig3", "--profile", "smoke", "--algos", "sac", "--seeds", "1",
-            "--store", str(store), "--out", str(tmp_path / "out"), "--time-limit", "90m"]
+    args = [
+        "fig3",
+        "--profile",
+        "smoke",
+        "--algos",
+        "sac",
+        "--seeds",
+        "1",
+        "--store",
+        str(store),
+        "--out",
+        str(tmp_path / "out"),
+        "--time-limit",
+        "90m",
+    ]
     code = main(args)
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == TIME_LIMIT_EXIT
     assert len(lines) == 1
     assert "0 of 1 runs finished and kept" in lines[0] and "1 not started" in lines[0]
-    assert lines[0].endswith("run the same command again to resume: python -m replicate "
-                             + " ".join(args))
+    assert lines[0].endswith(
+        "run the same command again to resume: python -m replicate " + " ".join(args)
+    )
     assert not (tmp_path / "out").exists()  # the report waits for the runs
     assert experiments._deadline is None  # the limit ends with its command

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-WORDS = re.compile(r"\bloans?\b|\blent\b|working sessions?|borrowed GPU|machine time",
-                   re.IGNORECASE)
+WORDS = re.compile(
+    r"\bloans?\b|\blent\b|working sessions?|borrowed GPU|machine time", re.IGNORECASE
+)
 SKIPPED = (
     "runs/",  # the run store: committed provenance records as they were written
     "tests/test_wording.py",  # the list itself
@@ -20,8 +21,9 @@ SKIPPED = (
 
 def tracked_files() -> list[Path]:
     try:
-        listed = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
-                                check=True).stdout.splitlines()
+        listed = subprocess.run(
+            ["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.splitlines()
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("not a git checkout")
     return [ROOT / name for name in listed if not name.startswith(SKIPPED)]

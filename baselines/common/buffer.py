@@ -39,8 +39,14 @@ class ReplayBuffer:
     def __len__(self) -> int:
         return self.size
 
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: float,
-            next_obs: np.ndarray, terminated: bool) -> None:
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+    ) -> None:
         i = self.position
         self.observations[i] = obs
         self.actions[i] = action
@@ -65,10 +71,14 @@ class ReplayBuffer:
 
     def state_dict(self) -> dict[str, np.ndarray | int]:
         n = self.size
-        return {"observations": self.observations[:n].copy(), "actions": self.actions[:n].copy(),
-                "rewards": self.rewards[:n].copy(),
-                "next_observations": self.next_observations[:n].copy(),
-                "terminated": self.terminated[:n].copy(), "position": self.position}
+        return {
+            "observations": self.observations[:n].copy(),
+            "actions": self.actions[:n].copy(),
+            "rewards": self.rewards[:n].copy(),
+            "next_observations": self.next_observations[:n].copy(),
+            "terminated": self.terminated[:n].copy(),
+            "position": self.position,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         n = len(state["rewards"])

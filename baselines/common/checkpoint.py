@@ -55,8 +55,11 @@ class TimeLimitReached(Exception):
     runner keeps the checkpoint, and the same command resumes from it."""
 
     def __init__(self, step: int | None):
-        super().__init__("not started: the time limit had passed" if step is None else
-                         f"stopped at the time limit after step {step}, checkpoint saved")
+        super().__init__(
+            "not started: the time limit had passed"
+            if step is None
+            else f"stopped at the time limit after step {step}, checkpoint saved"
+        )
         self.step = step
 
     def __reduce__(self):
@@ -68,8 +71,7 @@ def past(deadline: float | None) -> bool:
     return deadline is not None and time.time() >= deadline
 
 
-def due(step: int, last_checkpoint_step: int, interval: int,
-        deadline: float | None = None) -> bool:
+def due(step: int, last_checkpoint_step: int, interval: int, deadline: float | None = None) -> bool:
     """Whether to checkpoint now: every ``interval`` env steps (0: never), and at the first
     chance after ``deadline``, whatever the interval, so that a run stopped there keeps its
     work."""

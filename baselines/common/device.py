@@ -61,15 +61,15 @@ def resolve_device(requested: str, has_gpu_path: bool) -> str:
     if requested not in DEVICES:
         raise ValueError(f"unknown device '{requested}'; choose one of {', '.join(DEVICES)}")
     if requested == "cuda" and not torch.cuda.is_available():
-        raise DeviceUnavailableError("--device cuda was asked for, but torch sees no CUDA GPU "
-                                     f"(torch {torch.__version__})")
+        raise DeviceUnavailableError(
+            f"--device cuda was asked for, but torch sees no CUDA GPU (torch {torch.__version__})"
+        )
     if requested == "cpu" or not has_gpu_path:
         return "cpu"
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def worker_devices(requested: str, workers: int, gpu_workers: int | None = None
-                   ) -> list[str]:
+def worker_devices(requested: str, workers: int, gpu_workers: int | None = None) -> list[str]:
     """The device of each of ``workers`` local processes of a grid: every one on the device
     ``requested`` resolves to, unless ``gpu_workers`` limits those on the GPU (with ``auto``),
     the rest training on the CPU cores.
@@ -107,14 +107,16 @@ def resume_device(device: str, saved_on: str | None, follow: bool, what: str) ->
         return saved_on
     raise CheckpointDeviceError(
         f"{what} has a checkpoint made on {saved_on}, and would train on {device}; resume it "
-        f"with --device {saved_on} (or auto), or delete it to start over")
+        f"with --device {saved_on} (or auto), or delete it to start over"
+    )
 
 
 def describe_device(device: str) -> str:
     """``cpu``, or ``cuda`` with the GPU's name, for provenance."""
     if device.startswith("cuda"):
-        return (f"cuda ({torch.cuda.get_device_name(torch.device(device))}, "
-                f"CUDA {torch.version.cuda})")
+        return (
+            f"cuda ({torch.cuda.get_device_name(torch.device(device))}, CUDA {torch.version.cuda})"
+        )
     return device
 
 
@@ -171,8 +173,7 @@ class GraphedStep:
             self.static_outputs = self.body(**self.static_inputs)
 
 
-def make_adam(params, lr: float, device: torch.device, fused_on_cpu: bool
-              ) -> torch.optim.Adam:
+def make_adam(params, lr: float, device: torch.device, fused_on_cpu: bool) -> torch.optim.Adam:
     """Adam as the harness uses it: on CUDA fused and capturable (a replayed graph needs the
     step count on the device); on CPU fused only where the algorithm always was, so that
     CPU curves do not move."""

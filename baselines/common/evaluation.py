@@ -57,11 +57,16 @@ class TrainingReturns:
         return means
 
     def state_dict(self) -> dict[str, np.ndarray]:
-        return {"running": self.running.copy(), "total": self.total.copy(),
-                "count": self.count.copy(), "partial": self.partial.copy()}
+        return {
+            "running": self.running.copy(),
+            "total": self.total.copy(),
+            "count": self.count.copy(),
+            "partial": self.partial.copy(),
+        }
 
-    def load_state_dict(self, state: dict[str, np.ndarray] | None,
-                        between_episodes: bool = False) -> None:
+    def load_state_dict(
+        self, state: dict[str, np.ndarray] | None, between_episodes: bool = False
+    ) -> None:
         """``None``: a checkpoint from before these were kept. The episodes that ended since
         the last point went unseen, so the next point has no value, and an episode in
         progress (unless the checkpoint was taken ``between_episodes``) is left out."""

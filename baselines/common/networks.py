@@ -12,8 +12,12 @@ from torch.nn import functional as F
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SAC reference implementation bounds
 
 
-def mlp(in_dim: int, out_dim: int, hidden_sizes: Sequence[int] = (256, 256),
-        activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
+def mlp(
+    in_dim: int,
+    out_dim: int,
+    hidden_sizes: Sequence[int] = (256, 256),
+    activation: type[nn.Module] = nn.ReLU,
+) -> nn.Sequential:
     """A fully connected network: ``in_dim -> hidden... -> out_dim`` with no output activation."""
     layers: list[nn.Module] = []
     last = in_dim
@@ -55,8 +59,14 @@ class TanhGaussianPolicy(nn.Module):
     that exploration noise never disturbs the global RNG used to initialise weights.
     """
 
-    def __init__(self, obs_dim: int, act_dim: int, action_low, action_high,
-                 hidden_sizes: Sequence[int] = (256, 256)):
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        action_low,
+        action_high,
+        hidden_sizes: Sequence[int] = (256, 256),
+    ):
         super().__init__()
         self.trunk = mlp(obs_dim, 2 * act_dim, hidden_sizes)
         low = torch.as_tensor(action_low, dtype=torch.float32)
@@ -72,20 +82,29 @@ class TanhGaussianPolicy(nn.Module):
         mean, _ = self(obs)
         return self.action_bias + self.action_scale * torch.tanh(mean)
 
-    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None,
-               noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(
+        self,
+        obs: torch.Tensor,
+        generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """A reparameterised action and its log-density; ``noise`` (standard normal, one row
         per observation) is drawn from ``generator`` unless given."""
         mean, log_std = self(obs)
         if noise is None:
-            noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype,
-                                device=mean.device)
+            noise = torch.randn(
+                mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
+            )
         return squashed_sample(mean, log_std, noise, self.action_scale, self.action_bias)
 
 
-def squashed_sample(mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor,
-                    action_scale: torch.Tensor, action_bias: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
+def squashed_sample(
+    mean: torch.Tensor,
+    log_std: torch.Tensor,
+    noise: torch.Tensor,
+    action_scale: torch.Tensor,
+    action_bias: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """bias + scale * tanh(mean + std * noise) and its log-density (the last axis is the
     action's); shared by the one-run policy and the seed-batched one."""
     std = log_std.exp()

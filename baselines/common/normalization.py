@@ -23,8 +23,9 @@ class RunningMeanStd:
         delta = batch_mean - self.mean
         total = self.count + n
         self.mean = self.mean + delta * n / total
-        self.var = (self.var * self.count + batch_var * n
-                    + delta**2 * self.count * n / total) / total
+        self.var = (
+            self.var * self.count + batch_var * n + delta**2 * self.count * n / total
+        ) / total
         self.count = total
 
     def normalize(self, x: np.ndarray, clip: float) -> np.ndarray:

@@ -89,25 +89,43 @@ class PrioritizedReplayBuffer:
     def __len__(self) -> int:
         return self.size
 
-    def add_demonstrations(self, observations: np.ndarray, actions: np.ndarray,
-                           rewards: np.ndarray, next_observations: np.ndarray,
-                           terminated: np.ndarray, episode_end: np.ndarray) -> None:
+    def add_demonstrations(
+        self,
+        observations: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_observations: np.ndarray,
+        terminated: np.ndarray,
+        episode_end: np.ndarray,
+    ) -> None:
         """Fill the permanent region; call once, before any agent transition."""
         n = len(observations)
         if n == 0:
             raise ValueError("no demonstrations to put in the replay buffer")
         if self.size or n >= self.capacity:
             raise ValueError("demonstrations go in first and must leave room for the agent")
-        for name, values in (("observations", observations), ("actions", actions),
-                             ("rewards", rewards), ("next_observations", next_observations),
-                             ("terminated", terminated), ("episode_end", episode_end)):
+        for name, values in (
+            ("observations", observations),
+            ("actions", actions),
+            ("rewards", rewards),
+            ("next_observations", next_observations),
+            ("terminated", terminated),
+            ("episode_end", episode_end),
+        ):
             getattr(self, name)[:n] = values
         self.episode_end[n - 1] = True  # no demonstration follows the last one
-        self.tree.update(np.arange(n), np.full(n, self.max_priority ** self.alpha))
+        self.tree.update(np.arange(n), np.full(n, self.max_priority**self.alpha))
         self.n_demo = self.position = self.size = n
 
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-            terminated: bool, truncated: bool) -> None:
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
         i = self.position
         self.observations[i] = obs
         self.actions[i] = action
@@ -115,19 +133,29 @@ class PrioritizedReplayBuffer:
         self.next_observations[i] = next_obs
         self.terminated[i] = float(terminated)
         self.episode_end[i] = terminated or truncated
-        self.tree.update(np.array([i]), np.array([self.max_priority ** self.alpha]))
+        self.tree.update(np.array([i]), np.array([self.max_priority**self.alpha]))
         agent_slots = self.capacity - self.n_demo
         self.position = self.n_demo + (i + 1 - self.n_demo) % agent_slots
         self.size = min(self.size + 1, self.capacity)
 
-    ARRAYS = ("observations", "actions", "rewards", "next_observations", "terminated",
-              "episode_end")
+    ARRAYS = (
+        "observations",
+        "actions",
+        "rewards",
+        "next_observations",
+        "terminated",
+        "episode_end",
+    )
 
     def state_dict(self) -> dict:
         n = self.size
         state = {name: getattr(self, name)[:n].copy() for name in self.ARRAYS}
-        state.update(tree=self.tree.nodes.copy(), max_priority=self.max_priority,
-                     n_demo=self.n_demo, position=self.position)
+        state.update(
+            tree=self.tree.nodes.copy(),
+            max_priority=self.max_priority,
+            n_demo=self.n_demo,
+            position=self.position,
+        )
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -156,8 +184,9 @@ class PrioritizedReplayBuffer:
         agent_next = self.n_demo + (indices + 1 - self.n_demo) % max(self.capacity - self.n_demo, 1)
         return np.where(demo, indices + 1, agent_next)
 
-    def n_step(self, indices: np.ndarray, n: int, gamma: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def n_step(
+        self, indices: np.ndarray, n: int, gamma: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Discounted return of up to n steps from each index, the state reached, and the
         bootstrap discount; stops at an episode end or at the newest transition."""
         returns = np.zeros(len(indices), dtype=np.float64)
@@ -175,8 +204,9 @@ class PrioritizedReplayBuffer:
         discount *= 1.0 - self.terminated[last]
         return returns, self.next_observations[last], discount
 
-    def sample(self, batch_size: int, beta: float, n: int, gamma: float,
-               rng: np.random.Generator) -> PrioritizedBatch:
+    def sample(
+        self, batch_size: int, beta: float, n: int, gamma: float, rng: np.random.Generator
+    ) -> PrioritizedBatch:
         if self.size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
         total = self.tree.total
@@ -189,7 +219,8 @@ class PrioritizedReplayBuffer:
         returns, n_next, n_discount = self.n_step(indices, n, gamma)
         as_tensor = torch.from_numpy
         return PrioritizedBatch(
-            indices=indices, weights=as_tensor(weights.astype(np.float32)),
+            indices=indices,
+            weights=as_tensor(weights.astype(np.float32)),
             is_demo=indices < self.n_demo,
             observations=as_tensor(self.observations[indices]),
             actions=as_tensor(self.actions[indices]),

@@ -20,13 +20,13 @@ from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.device import make_adam
 from baselines.common.networks import TanhGaussianPolicy
 
-
 # Floats: a multiple of every CPU vector width, with room for an unrolled loop.
 WHOLE_VECTORS = 64
 
 
-def member_adam(params: Iterable[torch.Tensor], lr: float, device: torch.device
-                ) -> torch.optim.Adam:
+def member_adam(
+    params: Iterable[torch.Tensor], lr: float, device: torch.device
+) -> torch.optim.Adam:
     """Adam over stacked tensors (members first) in which member k's update does not depend
     on how many members are stacked.
 
@@ -41,8 +41,9 @@ def member_adam(params: Iterable[torch.Tensor], lr: float, device: torch.device
         return make_adam(params, lr, device, True)
     whole = [p for p in params if (p.numel() // p.shape[0]) % WHOLE_VECTORS == 0]
     rest = [p for p in params if (p.numel() // p.shape[0]) % WHOLE_VECTORS != 0]
-    groups = ([{"params": whole}] if whole else []) \
-        + ([{"params": rest, "fused": False, "foreach": False}] if rest else [])
+    groups = ([{"params": whole}] if whole else []) + (
+        [{"params": rest, "fused": False, "foreach": False}] if rest else []
+    )
     return torch.optim.Adam(groups, lr=lr, fused=True)
 
 
@@ -59,10 +60,14 @@ class StackedMLP(nn.Module):
     def stack(cls, networks: Sequence[nn.Sequential]) -> StackedMLP:
         """Stack the ``nn.Linear`` layers of equal-shaped ``networks``, in order."""
         layers = [[m for m in net if isinstance(m, nn.Linear)] for net in networks]
-        weights = [torch.stack([member[i].weight.detach().T for member in layers])
-                   for i in range(len(layers[0]))]
-        biases = [torch.stack([member[i].bias.detach()[None, :] for member in layers])
-                  for i in range(len(layers[0]))]
+        weights = [
+            torch.stack([member[i].weight.detach().T for member in layers])
+            for i in range(len(layers[0]))
+        ]
+        biases = [
+            torch.stack([member[i].bias.detach()[None, :] for member in layers])
+            for i in range(len(layers[0]))
+        ]
         return cls(weights, biases)
 
     @property
@@ -86,8 +91,13 @@ class StackedNormMLP(StackedMLP):
     """``StackedMLP`` with LayerNorm (a gain and a bias per member) after every hidden
     layer, before its ReLU, as RLPD's critics have it; gains and biases (members, 1, width)."""
 
-    def __init__(self, weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor],
-                 norm_gains: Sequence[torch.Tensor], norm_biases: Sequence[torch.Tensor]):
+    def __init__(
+        self,
+        weights: Sequence[torch.Tensor],
+        biases: Sequence[torch.Tensor],
+        norm_gains: Sequence[torch.Tensor],
+        norm_biases: Sequence[torch.Tensor],
+    ):
         super().__init__(weights, biases)
         self.norm_gains = nn.ParameterList(nn.Parameter(g.detach().clone()) for g in norm_gains)
         self.norm_biases = nn.ParameterList(nn.Parameter(b.detach().clone()) for b in norm_biases)
@@ -96,9 +106,13 @@ class StackedNormMLP(StackedMLP):
         return layer_norm_mlp(x, self.weights, self.biases, self.norm_gains, self.norm_biases)
 
 
-def layer_norm_mlp(x: torch.Tensor, weights: Sequence[torch.Tensor],
-                   biases: Sequence[torch.Tensor], norm_gains: Sequence[torch.Tensor],
-                   norm_biases: Sequence[torch.Tensor]) -> torch.Tensor:
+def layer_norm_mlp(
+    x: torch.Tensor,
+    weights: Sequence[torch.Tensor],
+    biases: Sequence[torch.Tensor],
+    norm_gains: Sequence[torch.Tensor],
+    norm_biases: Sequence[torch.Tensor],
+) -> torch.Tensor:
     """Stacked layers (n, in, out) on x (n, batch, in): Dense -> LayerNorm -> ReLU, the last
     layer Dense alone (RLPD's critic, one-run ensemble or batch of them alike)."""
     last = len(weights) - 1
@@ -126,8 +140,13 @@ class StackedPolicy(TanhGaussianPolicy):
         low = (self.action_bias - self.action_scale).cpu()
         high = (self.action_bias + self.action_scale).cpu()
         with torch.random.fork_rng(devices=[]):  # its throwaway initial weights draw no
-            policy = TanhGaussianPolicy(obs_dim, act_dim, low, high,  # batch random numbers
-                                        [w.shape[0] for w, _ in layers[:-1]])
+            policy = TanhGaussianPolicy(
+                obs_dim,
+                act_dim,
+                low,
+                high,  # batch random numbers
+                [w.shape[0] for w, _ in layers[:-1]],
+            )
         linears = [m for m in policy.trunk if isinstance(m, nn.Linear)]
         with torch.no_grad():
             for linear, (weight, bias) in zip(linears, layers, strict=True):
@@ -146,8 +165,9 @@ def critic_pairs(critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor) -> t
     return critic_ensembles(critics, obs, act, 2)
 
 
-def critic_ensembles(critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor,
-                     per_member: int) -> torch.Tensor:
+def critic_ensembles(
+    critics: StackedMLP, obs: torch.Tensor, act: torch.Tensor, per_member: int
+) -> torch.Tensor:
     """Q of every member's ``per_member`` critics, stacked member-major: (N, B, .) inputs to
     (N, per_member, B)."""
     members, rows = obs.shape[0], obs.shape[1]
@@ -160,15 +180,15 @@ class StackedReplay:
     the training device, each row (s, a, r, s', terminated). All members add one transition
     per step, so they share the write position and the size."""
 
-    def __init__(self, members: int, obs_dim: int, act_dim: int, capacity: int,
-                 device: torch.device):
+    def __init__(
+        self, members: int, obs_dim: int, act_dim: int, capacity: int, device: torch.device
+    ):
         if capacity <= 0:
             raise ValueError(f"replay capacity must be positive, got {capacity}")
         self.obs_dim, self.act_dim, self.capacity = obs_dim, act_dim, capacity
         self.width = 2 * obs_dim + act_dim + 2
         self.device = device
-        self.data = torch.zeros((members, capacity, self.width), dtype=torch.float32,
-                                device=device)
+        self.data = torch.zeros((members, capacity, self.width), dtype=torch.float32, device=device)
         self.position = 0
         self.size = 0
         self._members = torch.arange(members, device=device)[:, None]
@@ -177,10 +197,17 @@ class StackedReplay:
     def bytes_per_member(obs_dim: int, act_dim: int, capacity: int) -> int:
         return 4 * capacity * (2 * obs_dim + act_dim + 2)
 
-    def add(self, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-            next_obs: np.ndarray, terminated: np.ndarray) -> None:
-        row = np.concatenate([obs, actions, rewards[:, None], next_obs,
-                              terminated[:, None]], axis=1).astype(np.float32)
+    def add(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+    ) -> None:
+        row = np.concatenate(
+            [obs, actions, rewards[:, None], next_obs, terminated[:, None]], axis=1
+        ).astype(np.float32)
         self.data[:, self.position] = torch.from_numpy(row).to(self.device, non_blocking=True)
         self.position = (self.position + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
@@ -192,9 +219,13 @@ class StackedReplay:
     def split(self, rows: torch.Tensor) -> Batch:
         """Stored rows (N, B, width) as a batch."""
         o, a = self.obs_dim, self.act_dim
-        return Batch(observations=rows[..., :o], actions=rows[..., o:o + a],
-                     rewards=rows[..., o + a], next_observations=rows[..., o + a + 1:2 * o + a + 1],
-                     terminated=rows[..., -1])
+        return Batch(
+            observations=rows[..., :o],
+            actions=rows[..., o : o + a],
+            rewards=rows[..., o + a],
+            next_observations=rows[..., o + a + 1 : 2 * o + a + 1],
+            terminated=rows[..., -1],
+        )
 
     def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
         """Uniform with replacement, member k's indices from ``rngs[k]`` alone (as
@@ -203,7 +234,7 @@ class StackedReplay:
         return self.gather(torch.from_numpy(indices).to(self.device))
 
     def state_dict(self) -> dict[str, object]:
-        return {"data": self.data[:, :self.size].cpu().clone(), "position": self.position}
+        return {"data": self.data[:, : self.size].cpu().clone(), "position": self.position}
 
     def load_state_dict(self, state: dict) -> None:
         n = state["data"].shape[1]
@@ -219,20 +250,35 @@ class StackedSymmetricReplay(StackedReplay):
     keeps them, beside the demonstration transitions all members share (never overwritten).
     Every sample is half demonstration rows, first, then online rows."""
 
-    def __init__(self, demos: ReplayBuffer, members: int, obs_dim: int, act_dim: int,
-                 capacity: int, device: torch.device):
+    def __init__(
+        self,
+        demos: ReplayBuffer,
+        members: int,
+        obs_dim: int,
+        act_dim: int,
+        capacity: int,
+        device: torch.device,
+    ):
         super().__init__(members, obs_dim, act_dim, capacity, device)
         n = demos.size
-        rows = np.concatenate([demos.observations[:n], demos.actions[:n],
-                               demos.rewards[:n, None], demos.next_observations[:n],
-                               demos.terminated[:n, None]], axis=1)
+        rows = np.concatenate(
+            [
+                demos.observations[:n],
+                demos.actions[:n],
+                demos.rewards[:n, None],
+                demos.next_observations[:n],
+                demos.terminated[:n, None],
+            ],
+            axis=1,
+        )
         self.demos = torch.from_numpy(np.ascontiguousarray(rows, dtype=np.float32)).to(device)
 
     def gather_halves(self, demo_indices: torch.Tensor, online_indices: torch.Tensor) -> Batch:
         """Member k's demonstration rows ``demo_indices[k]`` and then its online rows
         ``online_indices[k]``, as one stacked batch."""
-        return self.split(torch.cat([self.demos[demo_indices],
-                                     self.data[self._members, online_indices]], dim=1))
+        return self.split(
+            torch.cat([self.demos[demo_indices], self.data[self._members, online_indices]], dim=1)
+        )
 
     def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
         """Member k draws ``batch_size // 2`` demonstration rows, then the rest online, from
@@ -242,6 +288,7 @@ class StackedSymmetricReplay(StackedReplay):
         for rng in rngs:
             demo_rows.append(rng.integers(0, len(self.demos), size=half))
             online_rows.append(rng.integers(0, self.size, size=batch_size - half))
-        return self.gather_halves(torch.from_numpy(np.stack(demo_rows)).to(self.device),
-                                  torch.from_numpy(np.stack(online_rows)).to(self.device))
-
+        return self.gather_halves(
+            torch.from_numpy(np.stack(demo_rows)).to(self.device),
+            torch.from_numpy(np.stack(online_rows)).to(self.device),
+        )
