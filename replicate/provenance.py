@@ -10,8 +10,6 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from baselines.common.device import can_flush_denormals
-
 PACKAGES = (
     "torch",
     "numpy",
@@ -113,6 +111,12 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def _can_flush_denormals() -> bool:
+    from baselines.common.device import can_flush_denormals  # torch, only when asked
+
+    return can_flush_denormals()
+
+
 def machine() -> dict[str, str | int]:
     # the interpreter by its venv path inside the project (not resolved: a venv's python is
     # a link to the system's), by its name alone outside it
@@ -122,7 +126,7 @@ def machine() -> dict[str, str | int]:
         "processor": platform.processor() or platform.machine(),
         "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count() or 0,
-        "flushes_denormals": can_flush_denormals(),
+        "flushes_denormals": _can_flush_denormals(),
         "python_executable": executable
         if not Path(executable).is_absolute()
         else Path(executable).name,

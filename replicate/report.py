@@ -20,7 +20,6 @@ from replicate.claims import Group
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
 from replicate.published import FAMILY_TITLES, published_points
-from replicate.runner import Run
 from replicate.stats import (
     CONFIDENCE,
     interquartile_mean,
@@ -33,6 +32,7 @@ from replicate.stats import (
     t_mean,
     t_mean_columns,
 )
+from replicate.store import Run
 from replicate.templating import report_environment
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically

@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
@@ -47,44 +46,15 @@ from replicate.devices import check_device  # noqa: F401  (part of the runner's 
 from replicate.errors import HarnessError
 from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.spec import RunSpec, spec_hash
+from replicate.store import (  # noqa: F401  (the run store's reading side, re-exported)
+    CURVE_COLUMNS,
+    Run,
+    completed_runs,
+    is_complete,
+    load_run,
+)
 
 provenance.code_revision()  # fix the code's revision when the code is loaded
-
-CURVE_COLUMNS = [
-    "step",
-    "return_mean",
-    "return_std",
-    "returns",
-    "guided_fraction",
-    "gate_open",
-    "train_return",
-    "wall_s",
-]
-
-
-@dataclass
-class Run:
-    """A finished run, read back from its directory."""
-
-    path: Path
-    spec: dict[str, Any]
-    curve: pd.DataFrame
-    provenance: dict[str, Any]
-
-    @property
-    def final_return(self) -> float:
-        return float(self.curve["return_mean"].iloc[-1])
-
-    @property
-    def guided_share(self) -> float:
-        """The share of all its training steps on which a guider chose the action (NaN for
-        an algorithm that does not record it)."""
-        steps = np.diff(self.curve["step"].to_numpy(float))
-        fractions = self.curve["guided_fraction"].to_numpy(float)[1:]
-        known = np.isfinite(fractions)
-        if not known.any():
-            return float("nan")
-        return float((fractions[known] * steps[known]).sum() / steps[known].sum())
 
 
 @dataclass
@@ -146,28 +116,6 @@ def prepare(spec: RunSpec) -> PreparedRun:
     resolved["demos_path"] = None if demo_info is None else demo_info["path"]
     run_id = f"{spec.algo}__{spec.env_id.replace('/', '-')}__s{spec.seed}__{digest[:12]}"
     return PreparedRun(spec, resolved, config, demos, run_id)
-
-
-def is_complete(run_dir: Path) -> bool:
-    return (run_dir / "provenance.json").is_file() and not run_dir.name.startswith(".")
-
-
-def load_run(run_dir: Path) -> Run:
-    run_dir = Path(run_dir)
-    if not is_complete(run_dir):
-        raise HarnessError(
-            f"{run_dir} is not a complete run directory",
-            "point at a directory inside the run store that has provenance.json",
-        )
-    curve = pd.read_csv(run_dir / "curve.csv")
-    if "train_return" not in curve:  # trained before the column was recorded
-        curve["train_return"] = np.nan
-    return Run(
-        run_dir,
-        json.loads((run_dir / "spec.json").read_text()),
-        curve,
-        json.loads((run_dir / "provenance.json").read_text()),
-    )
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
@@ -667,11 +615,3 @@ def execute_batch(
         for lock_path, handle in locks:
             lock_path.unlink(missing_ok=True)
             handle.close()
-
-
-def completed_runs(store: Path) -> list[Run]:
-    """Every complete run in the store, in name order."""
-    store = Path(store)
-    if not store.is_dir():
-        return []
-    return [load_run(p) for p in sorted(store.iterdir()) if p.is_dir() and is_complete(p)]
