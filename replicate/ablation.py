@@ -654,7 +654,7 @@ def write_ablation_report(
     t2_rule: dict[str, Any] | None = None,
 ) -> Path:
     from replicate import provenance
-    from replicate.report import _atomic_write, summary_bytes
+    from replicate.report import _atomic_write, mujoco_threats, summary_bytes
 
     def estimate(values: list[float]) -> dict[str, Any]:
         if not values:
@@ -713,6 +713,8 @@ def write_ablation_report(
         ),
         "t2_rule": t2_rule,
         "rule_in_force": experiments.MUJOCO_T2_RULE,
+        # under every T2 of the sweep, so no single guided share stands for it
+        "threats": mujoco_threats([r for c in cells for r in c.runs] + sac_runs, guidance=False),
     }
     environment = report_environment()
     html = environment.get_template("ablation.html").render(**context)
@@ -729,6 +731,7 @@ def write_ablation_report(
         "failed": [{"run_id": i, "reason": why} for i, why in failed],
         "t2_rule": t2_rule,
         "steps": context["steps"],
+        "threats": context["threats"],
         "generated": context["generated"],
     }
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))

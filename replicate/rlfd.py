@@ -357,7 +357,7 @@ def write_rlfd_report(
     """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
     ``guidance`` (``experiments.guidance_settings``) is printed beside the verdicts."""
     from replicate import provenance
-    from replicate.report import _atomic_write, summary_bytes
+    from replicate.report import _atomic_write, mujoco_threats, summary_bytes
 
     budgets = RLFD_BUDGETS[profile.name]
     result = compare(outcome.runs, budgets, REPORT_SEED)
@@ -376,6 +376,7 @@ def write_rlfd_report(
         "random_episodes": RANDOM_EPISODES,
         "guidance": guidance or [],
         "other_profiles": _other_profiles(profile.name, out_dir),
+        "threats": mujoco_threats(outcome.runs),
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
@@ -397,6 +398,7 @@ def write_rlfd_report(
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
         "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "git_revisions": context["revisions"],
+        "threats": context["threats"],
     }
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"
