@@ -728,6 +728,7 @@ def write_ablation_report(
         "zero_threshold_equals_sac": context["zero_check"],
         "sac_final_mean": sac_final,
         "sac_runs": context["sac_runs"],
+        "run_ids": [run for row in rows for run in row["runs"]] + context["sac_runs"],
         "failed": [{"run_id": i, "reason": why} for i, why in failed],
         "t2_rule": t2_rule,
         "steps": context["steps"],

@@ -268,15 +268,9 @@ def published_rows(
 
 
 def summary_run_ids(summary: dict[str, Any]) -> list[str]:
-    """The run directories a report's ``summary.json`` names, whatever the report."""
-    if "cells" in summary:  # the comparison with IBRL, RLPD, JSRL
-        return [run for cell in summary["cells"] for run in cell["runs"]]
-    if "runs" in summary:  # Fig. 3
-        return [r["run_id"] for r in summary["runs"]]
-    return (
-        [run for row in summary.get("rows", []) for run in row["runs"]]  # Fig. 4, ablations
-        + summary.get("sac_runs", [])
-    )  # an ablation's SAC reference
+    """The run directories a report's ``summary.json`` names: its ``run_ids``, which every
+    report writes (none for a summary without them)."""
+    return list(summary.get("run_ids", []))
 
 
 def runs_missing_for(report_dir: Path, store: Path) -> list[str]:
@@ -623,6 +617,7 @@ def write_figure3_report(
             }
             for f in finals
         ],
+        "run_ids": [r.path.name for r in context["runs"]],
         "runs": [
             {
                 "run_id": r.path.name,
@@ -736,6 +731,7 @@ def write_figure4_report(
     summary = {
         "profile": profile.name,
         "env_id": env_id,
+        "run_ids": [run for row in rows for run in row["runs"]],
         "claim": claim,
         "paired": paired,
         "generated": context["generated"],

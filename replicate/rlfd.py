@@ -389,6 +389,7 @@ def write_rlfd_report(
         "generated": context["generated"],
         "budgets": {t: list(b) for t, b in budgets.items()},
         "reference": result["reference"],
+        "run_ids": [run for cell in result["cells"] for run in cell["runs"]],
         "cells": result["cells"],
         "verdicts": result["verdicts"],
         "guidance": guidance or [],

@@ -145,17 +145,18 @@ def test_report_replaces_superseded_runs_but_never_builds_from_fewer(smoke_fig3,
     assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
     summary_file = out / "fig3" / "summary.json"
     summary = json.loads(summary_file.read_text())
-    real = summary["runs"][0]["run_id"]
+    real = summary["run_ids"][0]
+    assert summary["run_ids"] == [r["run_id"] for r in summary["runs"]]
     # a run it names was superseded (its spec changed): as many runs as before, so rebuilt
-    summary["runs"][0]["run_id"] = real[:-12] + "0" * 12
+    summary["run_ids"][0] = real[:-12] + "0" * 12
     summary_file.write_text(json.dumps(summary))
     capsys.readouterr()
     assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
     assert "1 of the" in capsys.readouterr().out
     rebuilt = json.loads(summary_file.read_text())
-    assert rebuilt["runs"][0]["run_id"] == real and not list(out.glob(".*rebuild"))
+    assert rebuilt["run_ids"][0] == real and not list(out.glob(".*rebuild"))
     # it names a run the store cannot replace: the store gives fewer, so it stays
-    rebuilt["runs"].append(dict(rebuilt["runs"][0], run_id="sac__lost__s9__" + "1" * 12))
+    rebuilt["run_ids"].append("sac__lost__s9__" + "1" * 12)
     summary_file.write_text(json.dumps(rebuilt))
     assert main(["report", "--profile", "smoke", "--store", str(store), "--out", str(out)]) == 0
     assert "left as it is" in capsys.readouterr().out
