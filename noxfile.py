@@ -129,35 +129,14 @@ def carry(session: nox.Session) -> None:
     )
 
 
-# Experts of the paper's MuJoCo envs and of the dm-control tasks (the sparse cartpole uses
-# the dense one's). Kept here as data so the session reads without importing the package.
-EXPERT_ENVS = [
-    "Hopper-v5",
-    "Walker2d-v5",
-    "HalfCheetah-v5",
-    "Ant-v5",
-    "dm_control/cartpole-swingup-v0",
-    "dm_control/ball_in_cup-catch-v0",
-    "dm_control/walker-walk-v0",
-]
-
-
 @nox.session(python=PYTHON)
 def experts(session: nox.Session) -> None:
-    """Train (or resume) the SAC experts: `-- --env Hopper-v5 --steps 1000000` for one."""
+    """Train (or resume) the SAC experts, every env's in turn (replicate/experts.py lists
+    them); `-- --env Hopper-v5 --steps 1000000` for one."""
     _install(session)
-    args = list(session.posargs)
-    envs = [None] if "--env" in args else EXPERT_ENVS
-    for env_id in envs:
-        session.run(
-            "python",
-            "-m",
-            "replicate",
-            "expert",
-            *(["--env", env_id] if env_id else []),
-            *args,
-            env={"MUJOCO_GL": "disable"},
-        )
+    session.run(
+        "python", "-m", "replicate", "expert", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
 
 
 @nox.session(python=PYTHON)

@@ -309,7 +309,12 @@ def _build_parser() -> argparse.ArgumentParser:
         "expert file, from which `demos` rolls out demonstrations.",
         formatter_class=_HelpFormatter,
     )
-    expert.add_argument("--env", required=True, help="environment id, e.g. Hopper-v5")
+    expert.add_argument(
+        "--env",
+        default=None,
+        help="environment id, e.g. Hopper-v5 (default: every env with a committed expert, "
+        "one after another)",
+    )
     expert.add_argument(
         "--steps",
         type=int,
@@ -715,10 +720,8 @@ def _cmd_demos(args: argparse.Namespace) -> int:
 
 
 def _cmd_expert(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from replicate.errors import HarnessError
-    from replicate.experts import export_expert, train_expert, train_expert_batch
+    from replicate.experts import EXPERT_ENVS
 
     if args.minutes is not None and (args.seeds is None or args.minutes <= 0):
         raise HarnessError(
@@ -726,6 +729,16 @@ def _cmd_expert(args: argparse.Namespace) -> int:
             f"value, got {args.minutes}",
             "pass --seeds 1-8 --minutes 8",
         )
+    for env_id in [args.env] if args.env else EXPERT_ENVS:
+        _one_expert(argparse.Namespace(**{**vars(args), "env": env_id}))
+    return 0
+
+
+def _one_expert(args: argparse.Namespace) -> None:
+    from tqdm import tqdm
+
+    from replicate.experts import export_expert, train_expert, train_expert_batch
+
     if args.export_only:
         path = export_expert(args.env, args.root)
     elif args.seeds is not None:
@@ -775,7 +788,6 @@ def _cmd_expert(args: argparse.Namespace) -> int:
         f"expert: {path}: best evaluation {meta['best_eval_return']:.1f} at step "
         f"{meta['best_step']:,} of {meta['steps_trained']:,}; wall {meta['wall_time_s']:.0f} s"
     )
-    return 0
 
 
 def _cmd_fig3(args: argparse.Namespace) -> int:

@@ -26,6 +26,7 @@ from replicate import carry
 from replicate.claims import PAPER_FIG4_SEEDS
 from replicate.errors import HarnessError, TimeLimitStop
 from replicate.profiles import (  # noqa: F401
+    BUDGETS,
     PAPER_BUDGETS,
     PAPER_SEEDS_FIG3,
     PROFILES,
@@ -1184,11 +1185,8 @@ def rebuild_figure3(
 
 FIG4_ENV = "Ant-v5"
 FIG4_SEEDS = PAPER_FIG4_SEEDS  # the paper's four fixed seeds; claim 5 counts them too
-FIG4_BUDGETS: dict[str, tuple[int, int]] = {  # (env steps, evaluation interval) per profile
-    "smoke": (1200, 400),
-    "quick": (20_000, 1000),
-    "reduced": (500_000, 10_000),
-    "paper": (1_000_000, 10_000),
+FIG4_BUDGETS: dict[str, tuple[int, int]] = {  # profiles.BUDGETS["fig4"]: Ant's
+    name: table[FIG4_ENV] for name, table in BUDGETS["fig4"].items()
 }
 
 

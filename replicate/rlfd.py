@@ -39,7 +39,7 @@ from replicate.experiments import (
     stored_outcome,
     train_and_report,
 )
-from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
+from replicate.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
 from replicate.spec import RunSpec
@@ -61,27 +61,7 @@ BALL_IN_CUP = "dm_control/ball_in_cup-catch-v0"
 # backup_entropy=False; its locomotion runs keep the default (on), as MuJoCo and MountainCar
 # do here.
 SPARSE_TASKS = (CARTPOLE_SPARSE, BALL_IN_CUP)
-# Budgets (env steps, evaluation interval) per profile. MountainCar's match Fig. 3's, so its
-# SAC, DRL-EG and DDPGfD runs are shared with that figure. The sparse dm-control budgets are
-# those their dense experts needed (cartpole 40k steps, ball-in-cup 20k) with room to spare.
-RLFD_BUDGETS: dict[str, dict[str, tuple[int, int]]] = {
-    "smoke": {MOUNTAINCAR: (1200, 400)},
-    "quick": {MOUNTAINCAR: (20_000, 1000)},
-    "reduced": {
-        MOUNTAINCAR: (20_000, 1000),
-        CARTPOLE_SPARSE: (50_000, 5000),
-        BALL_IN_CUP: (50_000, 5000),
-        "Hopper-v5": (200_000, 5000),
-        "Ant-v5": (200_000, 5000),
-    },
-    "paper": {
-        MOUNTAINCAR: (100_000, 2000),
-        CARTPOLE_SPARSE: (200_000, 10_000),
-        BALL_IN_CUP: (200_000, 10_000),
-        "Hopper-v5": (1_000_000, 10_000),
-        "Ant-v5": (1_000_000, 10_000),
-    },
-}
+RLFD_BUDGETS = BUDGETS["rlfd"]  # (env steps, evaluation interval) per profile and task
 RLFD_SEEDS = 5
 RANDOM_EPISODES = 10
 REPORT_SEED = 20_261_126

@@ -234,3 +234,16 @@ def test_help_describes_every_profile_and_states_each_default_once(command, caps
     if "--profile" in out:
         for name, profile in PROFILES.items():
             assert f"{name}: {' '.join(profile.summary.split())}" in flat
+
+
+def test_expert_without_env_trains_every_expert_env_in_turn(monkeypatch):
+    from replicate import cli
+    from replicate.experts import EXPERT_ENVS
+
+    seen = []
+    monkeypatch.setattr(cli, "_one_expert", lambda args: seen.append(args.env))
+    assert cli.main(["expert", "--export-only"]) == 0
+    assert seen == list(EXPERT_ENVS)
+    seen.clear()
+    assert cli.main(["expert", "--env", "Hopper-v5", "--export-only"]) == 0
+    assert seen == ["Hopper-v5"]
