@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from replicate import experiments
+from replicate import drl_eg_settings
 from replicate.errors import HarnessError
 from replicate.experiments import (
     ALWAYS_GUIDE,
@@ -712,7 +712,7 @@ def write_ablation_report(
             | {provenance.git_revision()}
         ),
         "t2_rule": t2_rule,
-        "rule_in_force": experiments.MUJOCO_T2_RULE,
+        "rule_in_force": drl_eg_settings.MUJOCO_T2_RULE,
         # under every T2 of the sweep, so no single guided share stands for it
         "threats": mujoco_threats([r for c in cells for r in c.runs] + sac_runs, guidance=False),
     }

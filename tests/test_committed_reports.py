@@ -105,9 +105,9 @@ def test_summaries_are_strict_json():
 
 
 def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
-    from replicate import experiments
+    from replicate import drl_eg_settings, experiments
 
-    if experiments.MUJOCO_T2_RULE is not None:
+    if drl_eg_settings.MUJOCO_T2_RULE is not None:
         pytest.skip("the rule is set")
     # the store holds the ablation's 1x runs, whose spec is the spacing rule's: not shown
     summary = json.loads((ROOT / "reports" / "reduced" / "fig3" / "summary.json").read_text())
@@ -124,11 +124,11 @@ def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
     MuJoCo)."""
     import numpy as np
 
-    from replicate import experiments
+    from replicate import drl_eg_settings
     from replicate.ablation import RULE_PROFILE, choose_t2_rule, t2_rule_gains
 
     standing = choose_t2_rule(t2_rule_gains(STORE, RULE_PROFILE), np.random.default_rng(0))
-    assert experiments.MUJOCO_T2_RULE == standing["choice"], standing["leader"]
+    assert drl_eg_settings.MUJOCO_T2_RULE == standing["choice"], standing["leader"]
 
 
 def _quantities(node, found):

@@ -278,9 +278,9 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(
     )
     error = capsys.readouterr().err
     assert "--algos: sax not in this grid" in error and "ppo-bc" in error
-    from replicate import experiments
+    from replicate import drl_eg_settings
 
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", None)  # as before the rule was fixed
+    monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # as before the rule was fixed
     assert (
         main(
             [

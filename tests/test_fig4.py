@@ -97,14 +97,14 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
 
 
 def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path, capsys):
-    from replicate import experiments
+    from replicate import drl_eg_settings
     from replicate.experiments import figure3_grid, get_profile, waits_for_t2_rule
 
-    assert experiments.MUJOCO_T2_RULE in experiments.T2_RULE_SETTINGS  # fixed (README)
+    assert drl_eg_settings.MUJOCO_T2_RULE in drl_eg_settings.T2_RULE_SETTINGS  # fixed
     specs, _ = figure3_grid(get_profile("reduced"))
     assert not [s for s in specs if waits_for_t2_rule("reduced", s.env_id, s.algo)]
     # before the ablation fixed it, the ruled cells waited and a figure refused to train them
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", None)
+    monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)
     assert main(["fig4", "--profile", "reduced", "--store", str(tmp_path / "runs")]) == 2
     assert "waits for the MuJoCo T2 rule" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()  # nothing trained, nothing written
@@ -119,7 +119,7 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     import pytest
 
-    from replicate import ablation, experiments
+    from replicate import ablation, drl_eg_settings, experiments
     from replicate.errors import HarnessError
     from replicate.experiments import figure3_grid, figure4_grid, get_profile
     from replicate.rlfd import rlfd_grid
@@ -136,7 +136,7 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 
     gmm_before = ant(figure3_grid(reduced)[0], "drl-eg-gmm")
     for setting, threshold in zip(ablation.T2_RULE_SETTINGS, grid):
-        monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", setting)
+        monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", setting)
         sweep = ablation.ablation_specs(reduced, "Ant-v5", threshold, 0.1, 3)
         # a ruled run is the ablation's run of that setting: same spec, same run id
         assert ids(ant(figure3_grid(reduced)[0])[:3]) == ids(sweep)
@@ -147,7 +147,7 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     assert ant(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # its T2 is unused
     assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == grid[0]
     assert not experiments.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "2x")  # not a setting of the sweep
+    monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", "2x")  # not a setting of the sweep
     with pytest.raises(HarnessError, match="not a setting of the ablation"):
         figure3_grid(reduced)
 
@@ -155,16 +155,16 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from types import SimpleNamespace
 
-    from replicate import experiments
+    from replicate import drl_eg_settings, experiments
     from replicate.experiments import figure3_grid, get_profile, guidance_settings
 
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", None)  # before the rule, then with it
+    monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # before the rule, then with it
     specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]
     rows = {g["algo"]: g for g in guidance_settings("reduced", [], specs)}
     assert set(rows) == {"drl-eg", "drl-eg-gmm"} and rows["drl-eg"]["t2"] == []
     assert rows["drl-eg"]["source"].startswith("none yet: waits for the MuJoCo T2 rule")
     assert rows["drl-eg-gmm"]["source"].startswith("unused")
-    monkeypatch.setattr(experiments, "MUJOCO_T2_RULE", "16x")
+    monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", "16x")
     run = SimpleNamespace(
         spec={
             "algo": "drl-eg",
