@@ -892,17 +892,9 @@ def _cmd_rlfd(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from replicate.ablation import (
-        ABLATION_ENV,
-        MUJOCO_ABLATION_ENVS,
-        ablation_report_name,
-        rebuild_threshold_ablation,
-    )
-    from replicate.demos import default_demo_path
-    from replicate.experiments import FIG4_ENV, rebuild_figure3, rebuild_figure4
+    from replicate.figure_registry import figures
     from replicate.profiles import report_dir
     from replicate.report import write_unless_fewer
-    from replicate.rlfd import rebuild_rlfd
     from replicate.table1 import write_table1_report
 
     profiles = [args.profile] if args.profile else [p for p in PROFILE_NAMES if p != "smoke"]
@@ -936,33 +928,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
             print(line)
 
     for profile in profiles:
-        report_line(
-            rebuild(
-                profile,
-                "fig3",
-                lambda out: rebuild_figure3(
-                    profile=profile, seeds=args.seeds, store=args.store, out_dir=out
-                ),
-            )
-        )
-        report_line(
-            rebuild(
-                profile,
-                "fig4",
-                lambda out: (
-                    rebuild_figure4(profile, FIG4_ENV, None, args.store, out)
-                    if default_demo_path(FIG4_ENV).is_file()
-                    else None
-                ),
-            )
-        )
-        report_line(rebuild(profile, "rlfd", lambda out: rebuild_rlfd(profile, args.store, out)))
-        for env_id in (ABLATION_ENV, *MUJOCO_ABLATION_ENVS):
+        for name, figure in figures().items():
             report_line(
                 rebuild(
-                    profile,
-                    ablation_report_name(env_id),
-                    lambda out: rebuild_threshold_ablation(profile, args.store, out, env_id),
+                    profile, name, lambda out: figure.rebuild(profile, args.store, out, args.seeds)
                 )
             )
     if not_written:

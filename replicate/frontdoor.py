@@ -15,6 +15,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from replicate.figure_registry import steps_words as _steps
 from replicate.templating import report_environment
 
 PROFILE_ORDER = ("quick", "reduced", "paper")  # columns; smoke reports mean nothing
@@ -38,23 +39,10 @@ class ReportEntry:
 
 
 def _kind(name: str) -> str:
+    """A report's kind: its registered name; the ablations share one kind."""
     if name.startswith("ablate-threshold"):
         return "ablation"
-    return name if name in ("fig3", "fig4", "rlfd", "table1") else "other"
-
-
-def _steps(n: int) -> str:
-    """50k, 1M: how budgets are spoken of."""
-    if n >= 1_000_000 and n % 1_000_000 == 0:
-        return f"{n // 1_000_000}M"
-    return f"{n / 1000:g}k" if n >= 1000 else str(n)
-
-
-def _seed_range(counts: list[int]) -> str:
-    if not counts:
-        return ""
-    low, high = min(counts), max(counts)
-    return f"{low} seeds" if low == high else f"{low}-{high} seeds"
+    return name
 
 
 def read_report(root: Path, directory: Path) -> ReportEntry:
@@ -93,33 +81,14 @@ def read_report(root: Path, directory: Path) -> ReportEntry:
 
 
 def _describe(entry: ReportEntry, summary: dict[str, Any]) -> None:
-    if entry.kind == "fig3":
-        envs = [f["env_id"] for f in summary["final_returns"]]
-        entry.covers = (
-            f"Fig. 3: learning curves on {len(set(envs))} env(s), claims 1-4"
-            if envs
-            else "Fig. 3: no runs yet"
-        )
-        entry.budget = ", ".join(
-            f"{env.split('-v')[0].split('Continuous')[0]} {_steps(steps)}"
-            for env, steps in summary.get("budgets", {}).items()
-        )
-        entry.seeds = _seed_range([len(f["seeds"]) for f in summary["final_returns"]])
-    elif entry.kind == "fig4":
-        entry.covers = f"Fig. 4: SAC and DRL-EG on {summary['env_id']} from shared seeds, claim 5"
-        entry.budget = _steps(summary["steps"]) if summary.get("steps") else ""
-        entry.seeds = f"{len(summary['rows'])} pairs"
-    elif entry.kind == "rlfd":
-        entry.covers = "DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD on shared demonstrations"
-        budgets = sorted({steps for steps, _ in summary.get("budgets", {}).values()})
-        entry.budget = " to ".join(dict.fromkeys(_steps(b) for b in (budgets[0], budgets[-1])))
-        entry.seeds = _seed_range([c["n"] for c in summary["cells"]])
-    elif entry.kind == "ablation":
-        entry.covers = f"DRL-EG's threshold T2 swept on {summary['env_id']}"
-        entry.budget = _steps(summary["steps"]) if summary.get("steps") else ""
-        entry.seeds = _seed_range([len(r["runs"]) for r in summary["rows"]])
-    else:
-        entry.covers = "report"
+    from replicate.figure_registry import figures
+
+    figure = figures().get(entry.path.split("/")[-1])
+    if figure is None:
+        entry.covers = "a report this version of the harness does not know"
+        return
+    words = figure.describe(summary)
+    entry.covers, entry.budget, entry.seeds = words["covers"], words["budget"], words["seeds"]
 
 
 def find_reports(root: Path) -> list[ReportEntry]:

@@ -6,10 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from replicate.ablation import ABLATION_ENV, rebuild_threshold_ablation
-from replicate.experiments import rebuild_figure3, rebuild_figure4
 from replicate.report import summary_run_ids
-from replicate.rlfd import rebuild_rlfd
 
 ROOT = Path(__file__).resolve().parents[1]
 STORE = ROOT / "runs"
@@ -59,18 +56,10 @@ def test_committed_reports_and_runs_name_no_directory_of_the_machine_that_made_t
     ids=lambda p: p.relative_to(ROOT / "reports").as_posix(),
 )
 def test_a_committed_report_rebuilds_from_the_committed_runs(report, tmp_path):
+    from replicate.figure_registry import figures
+
     committed = json.loads((report / "summary.json").read_text())
-    profile = committed["profile"]
-    if "cells" in committed:
-        path = rebuild_rlfd(profile, STORE, tmp_path)
-    elif "paired" in committed:
-        path = rebuild_figure4(profile, committed["env_id"], None, STORE, tmp_path)
-    elif "zero_threshold_equals_sac" in committed:
-        path = rebuild_threshold_ablation(
-            profile, STORE, tmp_path, committed.get("env_id", ABLATION_ENV)
-        )
-    else:
-        path = rebuild_figure3(profile=profile, store=STORE, out_dir=tmp_path)
+    path = figures()[report.name].rebuild(committed["profile"], STORE, tmp_path, None)
     assert path is not None
     rebuilt = json.loads((tmp_path / "summary.json").read_text())
     for key in ("generated", "git_revisions"):  # when, and by which checkout, it was written

@@ -1,0 +1,41 @@
+"""Reports as plug-ins: every report is registered once; `nox -s report` and the front door
+loop over the registry; the guided-share figure, added by the README's recipe, rebuilds from
+a store."""
+
+import json
+
+from replicate.figure_registry import figures
+from replicate.frontdoor import write_front_door
+
+
+def test_every_report_is_registered_once():
+    names = set(figures())
+    assert {
+        "fig3",
+        "fig4",
+        "rlfd",
+        "ablate-threshold",
+        "ablate-threshold-ant",
+        "ablate-threshold-walker2d",
+        "guided-share",
+    } <= names
+
+
+def test_the_guided_share_plug_in_rebuilds_from_a_store_and_joins_the_front_door(
+    smoke_fig3, tmp_path
+):
+    store, _ = smoke_fig3
+    reports = tmp_path / "reports"
+    out = reports / "smoke-guided"
+    assert figures()["guided-share"].rebuild("smoke", store, out, None) is not None
+    summary = json.loads((out / "summary.json").read_text())
+    assert {row["algo"] for row in summary["rows"]} == {"drl-eg", "drl-eg-gmm"}
+    assert all(0 <= share <= 1 for row in summary["rows"] for share in row["shares"])
+    assert summary["run_ids"] and all((store / r).is_dir() for r in summary["run_ids"])
+    # under its registered name the front door describes it
+    (reports / "guided-share").mkdir(parents=True)
+    for name in ("index.html", "summary.json"):
+        (reports / "guided-share" / name).write_bytes((out / name).read_bytes())
+    page = write_front_door(reports).read_text()
+    assert "How often DRL-EG&#39;s guider acts over training" in page
+    assert figures()["guided-share"].rebuild("quick", tmp_path / "empty", out, None) is None
