@@ -93,6 +93,13 @@ def batched_trainer(name: str) -> Callable | None:
     return _BATCHED.get(name)
 
 
+def batchable_algorithms() -> list[str]:
+    """The algorithms that have a seed-batched trainer, sorted: what messages and help
+    texts name."""
+    _discover()
+    return sorted(_BATCHED)
+
+
 def _discover() -> None:
     global _discovered
     if _discovered:

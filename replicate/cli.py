@@ -160,6 +160,8 @@ DEVICE_HELP = (
 
 
 def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
+    from baselines.registry import batchable_algorithms
+
     parser.add_argument(
         "--device", default="auto", choices=["auto", "cpu", "cuda"], help=DEVICE_HELP
     )
@@ -180,7 +182,7 @@ def _add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) ->
             default=None,
             metavar="N",
             help="train up to N runs that differ only in seed together in "
-            "one process (SAC, twin-Q SAC, DRL-EG, RLPD, IBRL; the others "
+            f"one process ({', '.join(batchable_algorithms())}; the others "
             "train one per process). Default: on a GPU as many as fit its "
             "memory (up to 64), on CPU none",
         )

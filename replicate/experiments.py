@@ -357,7 +357,7 @@ def resolve_batch(
     memory, else None (one run per process). Bad sizes raise a one-line
     :class:`HarnessError`."""
     from baselines.common.device import resolve_device
-    from baselines.registry import batched_trainer
+    from baselines.registry import batchable_algorithms, batched_trainer
 
     if batch is not None and batch < 1:
         raise HarnessError(f"batch size must be >= 1, got {batch}", "pass --batch 4, say")
@@ -366,7 +366,7 @@ def resolve_batch(
         names = sorted({p.spec.algo for p in missing})
         raise HarnessError(
             f"--batch {batch}: no batched trainer for {', '.join(names)}",
-            "drop --batch (or batch sac, sac-twin-q, drl-eg, rlpd and ibrl runs)",
+            f"drop --batch (or batch {', '.join(batchable_algorithms())} runs)",
         )
     on_gpu = resolve_device(device, has_gpu_path=True) == "cuda"
     if not on_gpu or not batchable:

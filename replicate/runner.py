@@ -39,7 +39,7 @@ import torch
 from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
 from baselines.common.context import EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
-from baselines.registry import get_algorithm
+from baselines.registry import batchable_algorithms, get_algorithm
 from replicate import carry, provenance
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
@@ -458,7 +458,7 @@ def execute_batch(
         raise HarnessError(
             "the runs of a batch must differ only in seed, T2 and sigma, and "
             f"their algorithm must have a batched trainer ({members[0].spec.algo})",
-            "batch only sac, sac-twin-q, drl-eg, rlpd and ibrl runs of one env and budget",
+            f"batch only {', '.join(batchable_algorithms())} runs of one env and budget",
         )
     store.mkdir(parents=True, exist_ok=True)
     ident = batch_id(members)
