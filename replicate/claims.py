@@ -679,7 +679,8 @@ def claim_5(groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]
     )
     claim = judge(5, title, paper, [primary, paired], [drl, sac])
     if not blocked:  # decided by counting seeds, not by an interval
-        claim["parts"][0]["verdict"] = HOLDS if escaped.any() else FAILS
+        claim["parts"][0].update(verdict=HOLDS if escaped.any() else FAILS, decide=None)
+        claim["decides"] = []
         claim["verdict"] = REPRODUCED if escaped.any() else NOT_REPRODUCED
         if escaped.any() and claim["parts"][1]["verdict"] == FAILS:
             claim["verdict"] = PARTLY

@@ -139,6 +139,7 @@ def test_claim_5_needs_a_stuck_sac_seed():
     claim = claim_5(stuck, DEMOS)
     assert claim["verdict"] == "reproduced"
     assert claim["parts"][0]["seeds_meeting"] == 1  # seed 0: SAC stuck, DRL-EG escaped
+    assert claim["parts"][0]["decide"] is None and claim["decides"] == []  # decided
     kept = dict(stuck)
     kept[(ANT, "drl-eg")] = group(ANT, "drl-eg", [1000, 3100, 2900, 3050])
     assert claim_5(kept, DEMOS)["verdict"] == "not reproduced"  # stuck, and DRL-EG stays
