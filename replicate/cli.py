@@ -824,7 +824,7 @@ def _default_out(profile: str) -> Path:
 
 
 def _cmd_fig4(args: argparse.Namespace) -> int:
-    from replicate.experiments import run_figure4
+    from replicate.fig4 import run_figure4
 
     report = run_figure4(
         profile=args.profile,

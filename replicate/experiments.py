@@ -22,7 +22,6 @@ from tqdm import tqdm
 from baselines.common.checkpoint import TimeLimitReached, past
 from baselines.common.device import worker_devices
 from replicate import carry
-from replicate.claims import PAPER_FIG4_SEEDS
 from replicate.drl_eg_settings import (  # noqa: F401  (used here, and the grids' callers)
     ALWAYS_GUIDE,
     DEFAULT_GUIDE_NOISE_STD,
@@ -727,7 +726,7 @@ def run_figure3(
             chosen,
             out,
             guidance_settings(profile, outcome.runs, specs),
-            figure4_runs(profile, Path(store)),
+            _figure4_runs(profile, Path(store)),
         ),
         algos,
         envs,
@@ -1053,142 +1052,12 @@ def rebuild_figure3(
         chosen,
         out_dir,
         guidance_settings(profile, outcome.runs, specs),
-        figure4_runs(profile, Path(store)),
+        _figure4_runs(profile, Path(store)),
     )
 
 
-FIG4_ENV = "Ant-v5"
-FIG4_SEEDS = PAPER_FIG4_SEEDS  # the paper's four fixed seeds; claim 5 counts them too
-FIG4_BUDGETS: dict[str, tuple[int, int]] = {  # profiles.BUDGETS["fig4"]: Ant's
-    name: table[FIG4_ENV] for name, table in BUDGETS["fig4"].items()
-}
+def _figure4_runs(profile: str, store: Path) -> list[Run]:
+    """Fig. 4's runs of ``profile`` in the store (claim 5 is judged on them)."""
+    from replicate.fig4 import figure4_runs  # Fig. 4 builds on this module
 
-
-def figure4_grid(
-    profile: Profile, env_id: str = FIG4_ENV, seeds: int | None = None
-) -> list[RunSpec]:
-    """Fig. 4: SAC and DRL-EG on the same seeds, hence the same initial weights."""
-    from replicate.demos import default_demo_path
-
-    n_seeds = FIG4_SEEDS if seeds is None else seeds
-    if n_seeds <= 0:
-        raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 4")
-    if not default_demo_path(env_id).is_file():
-        raise HarnessError(
-            f"Fig. 4 needs demonstrations for {env_id}, and none are committed",
-            f"train its expert (`nox -s experts -- --env {env_id}`), then `nox -s demos`",
-        )
-    steps, interval = FIG4_BUDGETS[profile.name]
-    specs = []
-    for algo in ("sac", "drl-eg"):
-        hyper = algorithm_overrides(algo, profile.overrides)
-        if algo == "drl-eg":
-            hyper.update(drl_eg_env_defaults(env_id, profile.name))
-        specs += [
-            RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, hyper)
-            for seed in range(n_seeds)
-        ]
-    return specs
-
-
-def figure4_runs(profile: str, store: Path) -> list[Run]:
-    """The profile's Fig. 4 runs on Ant in the store (claim 5 is judged on them); none
-    without Ant's demonstrations."""
-    from replicate.demos import default_demo_path
-
-    if not default_demo_path(FIG4_ENV).is_file():
-        return []
-    return stored_runs(figure4_report_grid(get_profile(profile), FIG4_ENV, None), store)
-
-
-def figure4_command(profile: str, env_id: str) -> str:
-    """The command that trains the Fig. 4 grid at ``profile`` (named beside missing seeds)."""
-    env = "" if env_id == FIG4_ENV else f" --env {env_id}"
-    return f"nox -s replicate-fig4 -- --profile {profile}{env}"
-
-
-def figure4_report_grid(profile: Profile, env_id: str, seeds: int | None) -> list[RunSpec]:
-    """The pairs a Fig. 4 report covers: the paper's four seeds at least, so a command that
-    trains fewer (``--seeds 1``, one pair at a time) writes a report that lists the rest as
-    missing rather than one that looks complete."""
-    n_seeds = FIG4_SEEDS if seeds is None else seeds
-    return figure4_grid(profile, env_id, max(n_seeds, FIG4_SEEDS) if n_seeds > 0 else n_seeds)
-
-
-def rebuild_figure4(
-    profile: str = "quick",
-    env_id: str = FIG4_ENV,
-    seeds: int | None = None,
-    store: Path = Path("runs"),
-    out_dir: Path | None = None,
-) -> Path | None:
-    """Write the Fig. 4 report from the runs already in the store; train nothing; the seeds
-    it lacks are listed. Returns None, writing nothing, when the store holds no run of it (a
-    committed report stays)."""
-    from replicate.report import write_figure4_report
-
-    chosen = get_profile(profile)
-    specs = figure4_report_grid(chosen, env_id, seeds)
-    outcome = stored_outcome(specs, [], profile, store, figure4_command(profile, env_id))
-    if outcome is None:
-        return None
-    out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_figure4_report(
-        outcome, chosen, env_id, out_dir, guidance_settings(profile, outcome.runs, specs)
-    )
-
-
-def run_figure4(
-    profile: str = "quick",
-    env_id: str = FIG4_ENV,
-    seeds: int | None = None,
-    store: Path = Path("runs"),
-    out_dir: Path | None = None,
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
-    dry_run: bool = False,
-) -> Path | None:
-    """Train what Fig. 4 lacks and write its report; one that names runs the store lacks is
-    replaced only by one naming as many (``report.write_unless_fewer``). Returns the
-    report's path (None: nothing written, as with ``dry_run``, which prints what would
-    train)."""
-    from replicate.report import write_figure4_report
-
-    chosen = get_profile(profile)
-    if waits_for_t2_rule(profile, env_id, "drl-eg"):
-        raise HarnessError(
-            f"Fig. 4 on {env_id} at the {profile} budget {T2_WAIT_REASON}",
-            "run the ablation first, then fix MUJOCO_T2_RULE in "
-            "replicate/drl_eg_settings.py (docs/decisions.md: T2 on MuJoCo)",
-        )
-    to_train = figure4_grid(chosen, env_id, seeds)
-    specs = figure4_report_grid(chosen, env_id, seeds)
-    outcome = train_cells(
-        specs,
-        to_train,
-        Path(store),
-        figure4_command(profile, env_id),
-        dry_run=dry_run,
-        workers=workers,
-        checkpoint_interval=checkpoint_interval,
-        executor=executor,
-        address=address,
-        device=device,
-        gpu_workers=gpu_workers,
-        batch=batch,
-    )
-    if dry_run:
-        return None
-    out_dir = Path(out_dir or report_dir(profile, "fig4"))
-    return write_saying_why(
-        out_dir,
-        Path(store),
-        lambda out: write_figure4_report(
-            outcome, chosen, env_id, out, guidance_settings(profile, outcome.runs, specs)
-        ),
-    )
+    return figure4_runs(profile, store)

@@ -69,7 +69,7 @@ def _fig3(profile: str, store: Path, out: Path, seeds: int | None) -> Path | Non
 
 def _fig4(profile: str, store: Path, out: Path, seeds: int | None) -> Path | None:
     from replicate.demos import default_demo_path
-    from replicate.experiments import FIG4_ENV, rebuild_figure4
+    from replicate.fig4 import FIG4_ENV, rebuild_figure4
 
     if not default_demo_path(FIG4_ENV).is_file():
         return None

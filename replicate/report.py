@@ -23,7 +23,6 @@ from replicate.published import FAMILY_TITLES, published_points
 from replicate.stats import (
     CONFIDENCE,
     interquartile_mean,
-    paired_mean_difference,
     probability_of_improvement,
     score_profile,
     steps_to_reach,
@@ -638,109 +637,6 @@ def write_figure3_report(
         "seed_counts": context["seed_counts"],
         "budgets": {b["env_id"]: b["steps"] for b in budgets},
         "threats": context["threats"],
-    }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
-
-
-def write_figure4_report(
-    outcome: GridOutcome,
-    profile: Profile,
-    env_id: str,
-    out_dir: Path,
-    guidance: list[dict[str, Any]] | None = None,
-) -> Path:
-    """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
-    paired differences, and claim 5 when the env is the paper's (Ant)."""
-    from replicate.claims import ANT, PAPER_FIG4_SEEDS
-    from replicate.figures import paired_curves_png
-
-    by_seed: dict[int, dict[str, Run]] = defaultdict(dict)
-    for run in outcome.runs:
-        by_seed[run.spec["seed"]][run.spec["algo"]] = run
-    pairs = {seed: runs for seed, runs in sorted(by_seed.items()) if len(runs) == 2}
-    rows = []
-    for seed, runs in pairs.items():
-        sac, drl = runs["sac"], runs["drl-eg"]
-        rows.append(
-            {
-                "seed": seed,
-                "sac": sac.final_return,
-                "drl": drl.final_return,
-                "difference": drl.final_return - sac.final_return,
-                "guided_share": drl.guided_share,
-                # same seed, same initial weights: the step-0 evaluations must agree
-                "same_start": sac.curve["returns"].iloc[0] == drl.curve["returns"].iloc[0],
-                "runs": [sac.path.name, drl.path.name],
-            }
-        )
-    claim = None
-    if env_id == ANT and pairs:  # the same verdict as the Fig. 3 report's ledger
-        claim = ledger([], outcome.runs, profile)[4]
-    paired = claim.get("paired") if claim else None
-    if paired is None and rows:  # another env, or a profile that does not judge claim 5
-        paired = paired_mean_difference(
-            np.array([r["drl"] for r in rows]),
-            np.array([r["sac"] for r in rows]),
-            f"{env_id}: DRL-EG minus SAC, final return",
-        ).as_dict()
-    panels = [
-        (
-            seed,
-            {
-                algo: (
-                    run.curve["step"].to_numpy(),
-                    run.curve["return_mean"].to_numpy(),
-                    run.curve["train_return"].to_numpy(float),
-                )
-                for algo, run in runs.items()
-            },
-        )
-        for seed, runs in pairs.items()
-    ]
-    title = f"Fig. 4 replication on {env_id}, profile '{profile.name}'"
-    context = {
-        "title": title,
-        "profile": profile,
-        "env_id": env_id,
-        "rows": rows,
-        "paired": paired,
-        "claim": claim,
-        "confidence": CONFIDENCE,
-        "failed": outcome.failed,
-        "missing": outcome.skipped,
-        "figure_png_b64": base64.b64encode(paired_curves_png(panels, title)).decode()
-        if panels
-        else None,
-        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "steps": int(outcome.runs[0].spec["total_steps"]) if outcome.runs else 0,
-        "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs}),
-        "guidance": guidance or [],
-        "threats": threats_to_validity(
-            outcome.runs,
-            published_rows(
-                claim_groups(outcome.runs),
-                {env_id: int(outcome.runs[0].spec["total_steps"])} if outcome.runs else {},
-            ),
-            paper_seeds=PAPER_FIG4_SEEDS,
-        ),
-    }
-    env = report_environment()
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
-    summary = {
-        "profile": profile.name,
-        "env_id": env_id,
-        "run_ids": [run for row in rows for run in row["runs"]],
-        "claim": claim,
-        "paired": paired,
-        "generated": context["generated"],
-        "steps": context["steps"],
-        "threats": context["threats"],
-        "rows": [dict(r, same_start=bool(r["same_start"])) for r in rows],
-        "guidance": guidance or [],
-        "missing": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
-        "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
     }
     _atomic_write(out_dir / "summary.json", summary_bytes(summary))
     return out_dir / "index.html"

@@ -121,7 +121,8 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 
     from replicate import ablation, drl_eg_settings, experiments
     from replicate.errors import HarnessError
-    from replicate.experiments import figure3_grid, figure4_grid, get_profile
+    from replicate.experiments import figure3_grid, get_profile
+    from replicate.fig4 import figure4_grid
     from replicate.rlfd import rlfd_grid
     from replicate.runner import prepare
 
@@ -206,8 +207,8 @@ def test_an_ant_fig4_below_the_papers_budget_says_what_it_can_show(tmp_path):
     import numpy as np
     import pandas as pd
 
+    from replicate.fig4 import write_figure4_report
     from replicate.profiles import GridOutcome, get_profile
-    from replicate.report import write_figure4_report
     from replicate.runner import Run
 
     def run(algo: str, seed: int, end: float) -> Run:
