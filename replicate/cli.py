@@ -793,7 +793,7 @@ def _one_expert(args: argparse.Namespace) -> None:
 
 
 def _cmd_fig3(args: argparse.Namespace) -> int:
-    from replicate.experiments import run_figure3
+    from replicate.fig3 import run_figure3
 
     out = args.out or _default_out(args.profile)
     report = run_figure3(

@@ -64,8 +64,6 @@ from replicate.runner import (
 )
 from replicate.spec import RunSpec
 
-FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
-
 
 def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
     """The profile's overrides that ``algo``'s config has (each takes what it knows)."""
@@ -73,48 +71,6 @@ def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
 
     known = {f.name for f in dataclasses.fields(get_algorithm(algo).config_cls)}
     return {k: v for k, v in overrides.items() if k in known}
-
-
-def figure3_grid(
-    profile: Profile, seeds: int | None = None
-) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
-    """The Fig. 3 grid: every algorithm x env x seed of the profile, and the (env, algo,
-    reason) cells left out because their demonstrations do not exist yet."""
-    from baselines.registry import get_algorithm
-    from replicate.demos import default_demo_path
-
-    n_seeds = profile.seeds if seeds is None else seeds
-    if n_seeds <= 0:
-        raise HarnessError(f"number of seeds must be positive, got {n_seeds}", "pass --seeds 3")
-    specs, skipped = [], []
-    for env_id in profile.steps:
-        for algo in FIG3_ALGORITHMS:
-            if get_algorithm(algo).needs_demos and not default_demo_path(env_id).is_file():
-                skipped.append(
-                    (
-                        env_id,
-                        algo,
-                        "no committed demonstrations for this env yet "
-                        "(`nox -s experts`, then `nox -s demos`)",
-                    )
-                )
-                continue
-            hyper = algorithm_overrides(algo, profile.overrides)
-            if algo.startswith("drl-eg"):
-                hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
-            for seed in range(n_seeds):
-                specs.append(
-                    RunSpec(
-                        algo=algo,
-                        env_id=env_id,
-                        seed=seed,
-                        total_steps=profile.steps[env_id],
-                        eval_interval=profile.eval_interval[env_id],
-                        eval_episodes=profile.eval_episodes,
-                        hyperparameters=hyper,
-                    )
-                )
-    return specs, skipped
 
 
 ORPHANED_EXIT_CODE = 3
@@ -691,56 +647,6 @@ def _stop_summary(
     return ", ".join(parts)
 
 
-def run_figure3(
-    profile: str = "quick",
-    seeds: int | None = None,
-    store: Path = Path("runs"),
-    out_dir: Path = Path("reports/fig3"),
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
-    algos: list[str] | None = None,
-    envs: list[str] | None = None,
-    dry_run: bool = False,
-) -> Path | None:
-    """Train the Fig. 3 grid (what is missing; only the cells of ``algos`` x ``envs`` when
-    given) and write its HTML report from every run of the grid in the store; return its
-    path. ``dry_run``: print what would train, train and write nothing, return None."""
-    from replicate.report import write_figure3_report
-
-    chosen = get_profile(profile)
-    specs, skipped = figure3_grid(chosen, seeds)
-    return train_and_report(
-        specs,
-        skipped,
-        profile,
-        figure3_command(profile),
-        store,
-        out_dir,
-        lambda outcome, out: write_figure3_report(
-            outcome,
-            chosen,
-            out,
-            guidance_settings(profile, outcome.runs, specs),
-            _figure4_runs(profile, Path(store)),
-        ),
-        algos,
-        envs,
-        dry_run,
-        workers=workers,
-        checkpoint_interval=checkpoint_interval,
-        executor=executor,
-        address=address,
-        device=device,
-        gpu_workers=gpu_workers,
-        batch=batch,
-    )
-
-
 def without_waiting(
     specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str
 ) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
@@ -1023,41 +929,3 @@ def _run_on_ray(
     if stopped or not_started:
         raise TimeLimitStop(_stop_summary(missing, store, stopped, not_started, failed))
     return GridOutcome(runs, failed, time.time() - started)
-
-
-def figure3_command(profile: str) -> str:
-    """The command that trains the Fig. 3 grid at ``profile`` (named beside missing cells)."""
-    return f"nox -s replicate-fig3 -- --profile {profile}"
-
-
-def rebuild_figure3(
-    profile: str = "quick",
-    seeds: int | None = None,
-    store: Path = Path("runs"),
-    out_dir: Path = Path("reports/fig3"),
-) -> Path | None:
-    """Write the Fig. 3 report from the runs already in the store; train nothing. Cells of
-    the grid whose runs are missing are listed in the report. With none of the grid's runs
-    in the store, nothing is written (a committed report is not replaced by an empty one)
-    and None is returned."""
-    from replicate.report import write_figure3_report
-
-    chosen = get_profile(profile)
-    specs, skipped = figure3_grid(chosen, seeds)
-    outcome = stored_outcome(specs, skipped, profile, store, figure3_command(profile))
-    if outcome is None:
-        return None
-    return write_figure3_report(
-        outcome,
-        chosen,
-        out_dir,
-        guidance_settings(profile, outcome.runs, specs),
-        _figure4_runs(profile, Path(store)),
-    )
-
-
-def _figure4_runs(profile: str, store: Path) -> list[Run]:
-    """Fig. 4's runs of ``profile`` in the store (claim 5 is judged on them)."""
-    from replicate.fig4 import figure4_runs  # Fig. 4 builds on this module
-
-    return figure4_runs(profile, store)

@@ -62,7 +62,7 @@ def seed_words(counts: list[int]) -> str:
 
 
 def _fig3(profile: str, store: Path, out: Path, seeds: int | None) -> Path | None:
-    from replicate.experiments import rebuild_figure3
+    from replicate.fig3 import rebuild_figure3
 
     return rebuild_figure3(profile=profile, seeds=seeds, store=store, out_dir=out)
 

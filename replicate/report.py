@@ -2,50 +2,27 @@
 
 from __future__ import annotations
 
-import base64
 import json
 import os
 import shutil
 import tempfile
 from collections import defaultdict
-from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from replicate import provenance
 from replicate.claims import Group
-from replicate.figures import CurveBand, aggregate_png, learning_curves_png
-from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile
-from replicate.published import FAMILY_TITLES, published_points
+from replicate.profiles import PAPER_SEEDS_FIG3, Profile
+from replicate.published import published_points
 from replicate.stats import (
-    CONFIDENCE,
-    interquartile_mean,
     probability_of_improvement,
-    score_profile,
-    steps_to_reach,
     stratified_bootstrap_ci,
-    substream,
     t_mean,
-    t_mean_columns,
 )
 from replicate.store import Run
-from replicate.templating import report_environment
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
-
-
-@dataclass
-class FinalReturns:
-    env_id: str
-    algo: str
-    seeds: list[int]
-    finals: np.ndarray
-    mean: float
-    low: float
-    high: float
 
 
 def group_runs(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
@@ -64,35 +41,6 @@ def curve_matrix(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
         [r.curve.set_index("step").loc[common, "return_mean"].to_numpy(float) for r in runs]
     )
     return np.asarray(common), matrix
-
-
-def summarise(runs: list[Run]) -> tuple[list[CurveBand], list[FinalReturns]]:
-    """Each (env, algorithm)'s curve band and final returns, with t-intervals over seeds."""
-    bands, finals = [], []
-    for (env_id, algo), members in sorted(group_runs(runs).items()):
-        steps, matrix = curve_matrix(members)
-        band = t_mean_columns(matrix)
-        bands.append(
-            CurveBand(
-                algo,
-                env_id,
-                steps,
-                band.value,
-                band.low,
-                band.high,
-                len(members),
-                matrix,
-                [r.spec["seed"] for r in members],
-            )
-        )
-        last = matrix[:, -1]
-        est = t_mean(last)
-        finals.append(
-            FinalReturns(
-                env_id, algo, [r.spec["seed"] for r in members], last, est.value, est.low, est.high
-            )
-        )
-    return bands, finals
 
 
 def training_rates(members: list[Run]) -> dict[str, float]:
@@ -147,79 +95,6 @@ def drl_eg_improvement(
                     "high": float(est.high),
                 }
             )
-    return rows
-
-
-def aggregate_metrics(
-    groups: dict[tuple[str, str], Group], demo_returns: dict[str, float], rng: np.random.Generator
-) -> dict[str, Any] | None:
-    """IQM, performance profiles and probability of improvement over the envs that have
-    demonstrations, on final returns divided by the demonstrations' return (Agarwal et
-    al. 2021); every algorithm takes the same number of runs per env (the smallest)."""
-    algos = sorted({a for _, a in groups})
-    tasks = [
-        e
-        for e in sorted({e for e, _ in groups})
-        if e in demo_returns and all((e, a) in groups for a in algos)
-    ]
-    if not tasks or not algos:
-        return None
-    runs = min(len(groups[(e, a)].finals) for e in tasks for a in algos)
-    if runs < 2:
-        return None
-    scores = {
-        a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks], axis=1)
-        for a in algos
-    }
-    taus = np.linspace(0.0, 1.2, 49)
-    iqm, profiles = {}, {}
-    for algo in algos:
-        est = stratified_bootstrap_ci(interquartile_mean, (scores[algo],), rng)
-        iqm[algo] = (float(est.value), float(est.low), float(est.high))
-        prof = stratified_bootstrap_ci(lambda s: score_profile(s, taus), (scores[algo],), rng)
-        profiles[algo] = (prof.value, prof.low, prof.high)
-    improvement = drl_eg_improvement(scores, algos, rng)
-    png = aggregate_png(iqm, taus, profiles)
-    return {
-        "tasks": tasks,
-        "runs_per_task": runs,
-        "iqm": iqm,
-        "improvement": improvement,
-        "png_b64": base64.b64encode(png).decode(),
-    }
-
-
-REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstrations' return
-
-
-def efficiency_rows(
-    groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]
-) -> list[dict[str, Any]]:
-    """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
-    ``REACH_FRACTION`` of the demonstrations' return, each with a t-interval over seeds."""
-
-    def estimate(values: np.ndarray) -> dict[str, Any]:
-        values = values[np.isfinite(values)]
-        if not len(values):
-            return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
-        est = t_mean(values)
-        return {"mean": est.value, "low": est.low, "high": est.high, "n": int(len(values))}
-
-    rows = []
-    for (env_id, algo), group in sorted(groups.items()):
-        if env_id not in demo_returns:
-            continue
-        level = REACH_FRACTION * demo_returns[env_id]
-        rows.append(
-            {
-                "env_id": env_id,
-                "algo": algo,
-                "n": len(group.seeds),
-                "area": estimate(group.areas),
-                "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
-                "level": level,
-            }
-        )
     return rows
 
 
@@ -401,17 +276,6 @@ def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict
     return claims
 
 
-def seed_counts(runs: list[Run]) -> str:
-    """How many seeds the report's cells hold, from the runs: '5 seeds in 6 cells, 3 in
-    14' (per cell in the report's Budgets)."""
-    counts = sorted((len(members) for members in group_runs(runs).values()), reverse=True)
-    if not counts:
-        return "no runs yet"
-    tally = {n: counts.count(n) for n in dict.fromkeys(counts)}
-    parts = [f"{n} in {k} cell{'s' if k != 1 else ''}" for n, k in tally.items()]
-    return "seeds per cell: " + ", ".join(parts)
-
-
 MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
 
 
@@ -509,134 +373,3 @@ def threats_to_validity(
             "(the Fig. 3 report's 'Our SAC against published SAC' lists them)."
         )
     return threats
-
-
-def write_figure3_report(
-    outcome: GridOutcome,
-    profile: Profile,
-    out_dir: Path,
-    guidance: list[dict[str, Any]] | None = None,
-    fig4_runs: list[Run] | None = None,
-) -> Path:
-    """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
-    ``guidance`` (``experiments.guidance_settings``) is printed beside the claims;
-    ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5."""
-    runs = outcome.runs
-    bands, finals = summarise(runs) if runs else ([], [])
-    demo_lines = demo_returns(runs)
-    demos = {}
-    for run in runs:
-        info = run.provenance.get("demos")
-        if info:
-            demos[info["sha256"]] = dict(info, env_id=run.spec["env_id"])
-    groups = claim_groups(runs)
-    claims = ledger(runs, fig4_runs or [], profile)
-    aggregate = aggregate_metrics(groups, demo_lines, substream(REPORT_SEED, "aggregate"))
-    efficiency = efficiency_rows(groups, demo_lines)
-    published = published_rows(groups, profile.steps)
-    title = f"Fig. 3 replication, profile '{profile.name}'"
-    points = {
-        env_id: [
-            (p.steps, p.mean, p.std, p.family)
-            for p in published_points(env_id, steps)
-            if p.source in ("tianshou", "spinningup", "coach")
-        ]
-        for env_id, steps in profile.steps.items()
-        if env_id in {b.env_id for b in bands}
-    }
-    figure = (
-        base64.b64encode(
-            learning_curves_png(bands, demo_lines, title, points, list(profile.steps))
-        ).decode()
-        if bands
-        else None
-    )
-    revisions = sorted({r.provenance["git_revision"] for r in runs})
-    first = runs[0].provenance if runs else {}
-    budgets = [
-        {
-            "env_id": env_id,
-            "steps": profile.steps[env_id],
-            "eval_interval": profile.eval_interval[env_id],
-            "eval_episodes": profile.eval_episodes,
-            "seeds": {
-                algo: sorted(r.spec["seed"] for r in members)
-                for (env, algo), members in sorted(group_runs(runs).items())
-                if env == env_id
-            },
-            "paper": PAPER_BUDGETS.get(env_id, "-"),
-        }
-        for env_id in profile.steps
-    ]
-    context = {
-        "title": title,
-        "profile": profile,
-        "paper_seeds": PAPER_SEEDS_FIG3,
-        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "figure_png_b64": figure,
-        "finals": finals,
-        "claims": claims,
-        "aggregate": aggregate,
-        "budgets": budgets,
-        "runs": sorted(runs, key=lambda r: (r.spec["env_id"], r.spec["algo"], r.spec["seed"])),
-        "failed": outcome.failed,
-        "skipped": outcome.skipped,
-        "demos": list(demos.values()),
-        "versions": first.get("versions", provenance.package_versions()),
-        "machine": first.get("machine", provenance.machine()),
-        "revisions": revisions or [provenance.git_revision()],
-        "train_wall_s": sum(r.provenance["wall_time_s"] for r in runs),
-        "grid_wall_s": outcome.wall_time_s,
-        "confidence": CONFIDENCE,
-        "efficiency": efficiency,
-        "published": published,
-        "reach_fraction": REACH_FRACTION,
-        "guidance": guidance or [],
-        "seed_counts": seed_counts(runs),
-        "threats": threats_to_validity(runs, published),
-        "sac_standing": sac_standing(published),
-        "family_titles": FAMILY_TITLES,
-    }
-    env = report_environment()
-    html = env.get_template("fig3.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
-    summary = {
-        "profile": profile.name,
-        "generated": context["generated"],
-        "claims": claims,
-        "final_returns": [
-            {
-                "env_id": f.env_id,
-                "algo": f.algo,
-                "seeds": f.seeds,
-                "finals": f.finals.tolist(),
-                "mean": f.mean,
-                "ci95": [f.low, f.high],
-            }
-            for f in finals
-        ],
-        "run_ids": [r.path.name for r in context["runs"]],
-        "runs": [
-            {
-                "run_id": r.path.name,
-                "spec_hash": r.provenance["spec_hash"],
-                "final_return": r.final_return,
-            }
-            for r in context["runs"]
-        ],
-        "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
-        "skipped": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
-        "aggregate": None
-        if aggregate is None
-        else {k: aggregate[k] for k in ("tasks", "runs_per_task", "iqm", "improvement")},
-        "efficiency": efficiency,
-        "published_sac": published,
-        "guidance": guidance or [],
-        "git_revisions": context["revisions"],
-        "seed_counts": context["seed_counts"],
-        "budgets": {b["env_id"]: b["steps"] for b in budgets},
-        "threats": context["threats"],
-    }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"

@@ -6,7 +6,8 @@ import re
 import numpy as np
 
 from replicate.cli import main
-from replicate.experiments import DRL_EG_ENV_DEFAULTS, FIG3_ALGORITHMS
+from replicate.experiments import DRL_EG_ENV_DEFAULTS
+from replicate.fig3 import FIG3_ALGORITHMS
 
 
 def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
@@ -88,8 +89,9 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
 
 def test_published_sac_sits_beside_ours_at_the_same_steps():
     from replicate.claims import Group
+    from replicate.fig3 import efficiency_rows
     from replicate.published import published_points
-    from replicate.report import efficiency_rows, published_rows
+    from replicate.report import published_rows
 
     steps = np.array([0, 100_000, 200_000])
     curves = np.array([[0, 900, 2000.0], [0, 1100, 2400.0]])
@@ -125,7 +127,8 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
 
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
-    from replicate.report import claim_groups, efficiency_rows, summarise
+    from replicate.fig3 import efficiency_rows, summarise
+    from replicate.report import claim_groups
     from tests.test_rlfd import _run
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]

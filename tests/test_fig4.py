@@ -98,7 +98,8 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
 
 def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path, capsys):
     from replicate import drl_eg_settings
-    from replicate.experiments import figure3_grid, get_profile, waits_for_t2_rule
+    from replicate.experiments import get_profile, waits_for_t2_rule
+    from replicate.fig3 import figure3_grid
 
     assert drl_eg_settings.MUJOCO_T2_RULE in drl_eg_settings.T2_RULE_SETTINGS  # fixed
     specs, _ = figure3_grid(get_profile("reduced"))
@@ -121,7 +122,8 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 
     from replicate import ablation, drl_eg_settings, experiments
     from replicate.errors import HarnessError
-    from replicate.experiments import figure3_grid, get_profile
+    from replicate.experiments import get_profile
+    from replicate.fig3 import figure3_grid
     from replicate.fig4 import figure4_grid
     from replicate.rlfd import rlfd_grid
     from replicate.runner import prepare
@@ -157,7 +159,8 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from types import SimpleNamespace
 
     from replicate import drl_eg_settings, experiments
-    from replicate.experiments import figure3_grid, get_profile, guidance_settings
+    from replicate.experiments import get_profile, guidance_settings
+    from replicate.fig3 import figure3_grid
 
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # before the rule, then with it
     specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]

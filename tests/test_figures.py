@@ -217,7 +217,7 @@ def test_seed_note_names_the_usual_count_and_the_exceptions():
 
 
 def test_summarise_keeps_each_seeds_curve_under_the_band():
-    from replicate.report import summarise
+    from replicate.fig3 import summarise
 
     def run(seed, returns):
         curve = pd.DataFrame({"step": [0, 100, 200], "return_mean": returns})

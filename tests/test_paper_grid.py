@@ -6,13 +6,8 @@ import math
 import pytest
 
 from envs import PAPER_ENV_IDS
-from replicate.experiments import (
-    FIG3_ALGORITHMS,
-    algorithm_overrides,
-    drl_eg_env_defaults,
-    figure3_grid,
-    get_profile,
-)
+from replicate.experiments import algorithm_overrides, drl_eg_env_defaults, get_profile
+from replicate.fig3 import FIG3_ALGORITHMS, figure3_grid
 from tests.helpers import train_tiny
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from replicate.cli import main
-from replicate.experiments import FIG3_ALGORITHMS
+from replicate.fig3 import FIG3_ALGORITHMS
 
 PORT = "6391"
 

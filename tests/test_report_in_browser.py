@@ -16,7 +16,7 @@ from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 
 from replicate.cli import main
-from replicate.experiments import rebuild_figure3
+from replicate.fig3 import rebuild_figure3
 from replicate.figures import png_panels
 from replicate.profiles import get_profile
 
