@@ -1040,6 +1040,7 @@ def _refreshing_front_door(args: argparse.Namespace, code: int) -> int:
     something), refresh the front door reports/index.html from the reports there."""
     if (
         code == 0
+        and not getattr(args, "dry_run", False)  # a dry run writes nothing
         and args.command in FIGURE_COMMANDS
         and getattr(args, "out", None) is None
         and getattr(args, "profile", "quick") != "smoke"

@@ -73,3 +73,13 @@ def test_report_command_writes_it_and_exits_0_over_a_torn_summary(
     )
     assert "front door:" in capsys.readouterr().out
     assert "unavailable" in (reports_copy / "index.html").read_text()
+
+
+def test_a_dry_run_leaves_the_front_door_alone(tmp_path, monkeypatch):
+    import replicate.frontdoor as frontdoor
+    from replicate.cli import main
+
+    written = []
+    monkeypatch.setattr(frontdoor, "write_front_door", lambda root: written.append(root))
+    assert main(["fig3", "--profile", "quick", "--dry-run", "--store", str(tmp_path)]) == 0
+    assert written == []
