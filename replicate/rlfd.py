@@ -26,6 +26,7 @@ from replicate.claims import (
     EQUIVALENT,
     FAILS,
     HOLDS,
+    PAIRED,
     SMALLEST_EFFECT,
     Check,
     decide,
@@ -202,6 +203,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
                 by_seed(task, "drl-eg"),
                 by_seed(task, algo),
                 f"{task}: DRL-EG minus {algo}, final normalised score",
+                pair=algo in PAIRED,  # SAC shares DRL-EG's initial weights seed by seed
             )
             checks.append(
                 Check(

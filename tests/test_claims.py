@@ -195,3 +195,17 @@ def test_a_checks_interval_does_not_move_when_runs_for_another_check_arrive():
             part["low"],
             part["high"],
         )
+
+
+def test_claim_2_moves_only_with_new_pairs():
+    """SAC seeds without a DRL-EG partner change neither the paired estimate nor its margin."""
+    sac = [1000, 2000, 1500]
+    groups = {}
+    for env in (HOPPER, CHEETAH):
+        groups[(env, "sac")] = group(env, "sac", sac)
+        groups[(env, "drl-eg")] = group(env, "drl-eg", np.array(sac) + [40, -60, 90])
+    before = claim_2(groups, DEMOS)
+    groups[(HOPPER, "sac")] = group(HOPPER, "sac", sac + [100, 150])  # two unpaired seeds
+    after = claim_2(groups, DEMOS)
+    assert [p["what"] for p in after["parts"]] == [p["what"] for p in before["parts"]]
+    assert after["parts"][0]["low"] == before["parts"][0]["low"]
