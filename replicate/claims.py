@@ -272,9 +272,8 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
             rates = [g.rates[kind] for g in check.groups if kind in g.rates]
             if rates:
                 costs.append(f"about {_hours(steps, min(rates), processes)} on {machine}")
-        cost = f"{extra_runs} more runs, {steps:,} env steps" + (
-            ", " + " or ".join(costs) if costs else ""
-        )
+        runs = f"{extra_runs} more run" + ("s" if extra_runs != 1 else "")
+        cost = f"{runs}, {steps:,} env steps" + (", " + " or ".join(costs) if costs else "")
         text += f": {cost}" + (" at the rates the store's runs recorded" if costs else "")
         short += f": {cost}"
     return text, short
@@ -296,7 +295,12 @@ def judge(
             shorts.append(f"{where_}: " + (check.not_testable or full_and_short[1]))
     primary = [c for c in checks if c.primary]
     states = {c.state for c in primary}
-    failing = [c.what for c in checks if not c.primary and c.state == FAILS]
+    # a secondary check fails, or finds a difference the claim states equivalent to none
+    failing = [
+        c.what
+        for c in checks
+        if not c.primary and (c.state == FAILS or (c.state == EQUIVALENT and c.within is None))
+    ]
     if NOT_TESTABLE in states:
         verdict = NOT_TESTABLE
     elif states == {HOLDS}:
