@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Any
 
 # dm-control picks an OpenGL backend at import; the harness never renders, and an
 # attempt to open GLFW without a display only produces noise.
@@ -101,16 +102,18 @@ class FlatFloat32Env(gym.Wrapper, gym.utils.RecordConstructorArgs):
             dtype=np.float32,
         )
 
-    def _flat(self, obs) -> np.ndarray:
+    def _flat(self, obs: Any) -> np.ndarray:
         if self._inner_is_box:  # one cast: the same values as flatten, then a cast
             return np.array(obs, dtype=np.float32).reshape(-1)  # a copy, as flatten makes
         return np.asarray(gym.spaces.flatten(self._inner_obs_space, obs), dtype=np.float32)
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict]:
         obs, info = self.env.reset(seed=seed, options=options)
         return self._flat(obs), info
 
-    def step(self, action):
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         action = np.asarray(action, dtype=self._inner_act_dtype)
         obs, reward, terminated, truncated, info = self.env.step(action)
         return self._flat(obs), float(reward), bool(terminated), bool(truncated), info

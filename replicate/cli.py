@@ -9,6 +9,7 @@ import re
 import shlex
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from replicate.profiles import PROFILES
@@ -911,7 +912,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         keep = args.profile or profile == "quick" or (path / "summary.json").is_file()
         return path if keep else None
 
-    def rebuild(profile: str, name: str, build) -> str:
+    def rebuild(profile: str, name: str, build: Callable[[Path], Path | None]) -> str:
         path = target(profile, name)
         if path is None:
             not_written.add(profile)

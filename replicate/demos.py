@@ -19,6 +19,7 @@ import json
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -215,7 +216,7 @@ def mountaincar_rule(obs: np.ndarray) -> np.ndarray:
 
 def rollout_demos(
     env_id: str,
-    rule,
+    rule: Callable[[np.ndarray], np.ndarray],
     n_pairs: int,
     seed: int,
     command: str,

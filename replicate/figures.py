@@ -21,6 +21,7 @@ matplotlib.use("Agg")  # no display is ever needed
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import seaborn as sns  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
@@ -94,7 +95,7 @@ def steps_label(steps: float) -> str:
     return f"{steps:g}"
 
 
-def format_steps_axis(ax) -> None:
+def format_steps_axis(ax: Axes) -> None:
     """Label ``ax``'s x axis in env steps with short ticks (50k, not 50000), which stay
     apart on narrow panels."""
     ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: steps_label(value)))
@@ -290,7 +291,7 @@ def learning_curves_png(
     return png_bytes(fig)
 
 
-def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], xlabel: str) -> None:
+def draw_iqm(ax: Axes, iqm: dict[str, tuple[float, float, float]], xlabel: str) -> None:
     """One row per algorithm: its IQM with the CI as a horizontal bar, in its colour."""
     algos = list(iqm)
     for row, algo in enumerate(algos):
@@ -313,7 +314,7 @@ def draw_iqm(ax, iqm: dict[str, tuple[float, float, float]], xlabel: str) -> Non
 
 
 def draw_profiles(
-    ax,
+    ax: Axes,
     taus: np.ndarray,
     profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
     xlabel: str,

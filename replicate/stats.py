@@ -7,6 +7,7 @@ column of final returns). No function touches a global random state.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -347,7 +348,7 @@ def _resample_runs(scores: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def stratified_bootstrap_ci(
-    statistic,
+    statistic: Callable[..., Any],
     samples: tuple[np.ndarray, ...],
     rng: np.random.Generator,
     confidence: float = CONFIDENCE,

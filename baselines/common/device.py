@@ -10,7 +10,7 @@ were.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import torch
 
@@ -173,7 +173,9 @@ class GraphedStep:
             self.static_outputs = self.body(**self.static_inputs)
 
 
-def make_adam(params, lr: float, device: torch.device, fused_on_cpu: bool) -> torch.optim.Adam:
+def make_adam(
+    params: Iterable[torch.nn.Parameter], lr: float, device: torch.device, fused_on_cpu: bool
+) -> torch.optim.Adam:
     """Adam as the harness uses it: on CUDA fused and capturable (a replayed graph needs the
     step count on the device); on CPU fused only where the algorithm always was, so that
     CPU curves do not move."""

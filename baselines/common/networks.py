@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -63,8 +64,8 @@ class TanhGaussianPolicy(nn.Module):
         self,
         obs_dim: int,
         act_dim: int,
-        action_low,
-        action_high,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
         hidden_sizes: Sequence[int] = (256, 256),
     ):
         super().__init__()
