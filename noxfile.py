@@ -72,6 +72,16 @@ def compare_rlfd(session: nox.Session) -> None:
     )
 
 
+@nox.session(name="sac-random-start", python=PYTHON)
+def sac_random_start(session: nox.Session) -> None:
+    """SAC with the SAC authors' random start against today's start (default profile:
+    reduced): reports/<profile>/random-start."""
+    _install(session)
+    session.run(
+        "python", "-m", "replicate", "random-start", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
+
+
 @nox.session(python=PYTHON)
 def bench(session: nox.Session) -> None:
     """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""

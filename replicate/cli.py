@@ -588,6 +588,38 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_cell_arguments(rlfd)
     _add_time_limit_argument(rlfd)
 
+    start = sub.add_parser(
+        "random-start",
+        help="SAC with the SAC authors' random start against today's start",
+        description="Train SAC on HalfCheetah-v5 and Ant-v5 with 10,000 uniform-random "
+        "start steps, from the seeds of the profile's Fig. 3 SAC runs (only runs missing "
+        "from the store), and write reports/<profile>/random-start/index.html: each env's "
+        "paired difference in final return and area under the curve.",
+        formatter_class=_HelpFormatter,
+    )
+    start.add_argument("--profile", default="reduced", choices=PROFILE_NAMES, help=_profile_help())
+    start.add_argument("--store", type=Path, default=None, help=STORE_HELP)
+    start.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: reports/<profile>/random-start)",
+    )
+    start.add_argument(
+        "--workers", type=int, default=None, help="parallel training processes (one per core)"
+    )
+    start.add_argument(
+        "--checkpoint-interval",
+        type=int,
+        default=10_000,
+        help="env steps between checkpoints of a run",
+    )
+    start.add_argument(
+        "--dry-run", action="store_true", help="print what would train; train and write nothing"
+    )
+    _add_device_argument(start, grid=True)
+    _add_time_limit_argument(start)
+
     report = sub.add_parser(
         "report",
         help="rebuild reports from the run store without training",
@@ -894,6 +926,24 @@ def _cmd_rlfd(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_random_start(args: argparse.Namespace) -> int:
+    from replicate.random_start import run_random_start
+
+    report = run_random_start(
+        profile=args.profile,
+        store=args.store,
+        out_dir=args.out,
+        dry_run=args.dry_run,
+        workers=args.workers,
+        checkpoint_interval=args.checkpoint_interval,
+        device=args.device,
+        batch=args.batch,
+    )
+    if report is not None:
+        print(f"report: {report}")
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from replicate.figure_registry import figures
     from replicate.profiles import report_dir
@@ -1018,6 +1068,7 @@ def _cmd_envs(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {
+    "random-start": _cmd_random_start,
     "compare-rlfd": _cmd_rlfd,
     "train": _cmd_train,
     "demos": _cmd_demos,
@@ -1033,7 +1084,7 @@ COMMANDS = {
 }
 
 
-FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1")
+FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1", "random-start")
 
 
 def _refreshing_front_door(args: argparse.Namespace, code: int) -> int:

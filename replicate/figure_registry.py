@@ -14,7 +14,7 @@ from typing import Any
 
 # Modules that register a figure of their own (the built-in ones are declared below, their
 # writers imported only when a report is rebuilt, so the front door stays light).
-FIGURE_MODULES = ("replicate.guided_share",)
+FIGURE_MODULES = ("replicate.guided_share", "replicate.random_start")
 
 
 @dataclass(frozen=True)

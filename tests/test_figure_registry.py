@@ -18,6 +18,7 @@ def test_every_report_is_registered_once():
         "ablate-threshold-ant",
         "ablate-threshold-walker2d",
         "guided-share",
+        "random-start",
     } <= names
 
 

@@ -80,3 +80,46 @@ def test_a_seed_batch_member_draws_its_one_run_random_start(tmp_path, monkeypatc
     config = get_algorithm("sac").make_config(dict(TINY, random_start_steps=150))
     batch_curves("sac", config, tmp_path / "batch", seeds=(0, 1), steps=400)
     assert drawn == [(seed, step) for step in range(1, 151) for seed in (0, 1)]
+
+
+def test_the_study_reuses_fig3s_sac_runs_for_todays_start():
+    from replicate.fig3 import figure3_grid
+    from replicate.profiles import get_profile
+    from replicate.random_start import random_start_grid
+
+    fig3 = {prepare(s).run_id for s in figure3_grid(get_profile("reduced"))[0] if s.algo == "sac"}
+    study = [prepare(s) for s in random_start_grid("reduced")]
+    today = {p.run_id for p in study if not p.spec.hyperparameters["random_start_steps"]}
+    assert len(today) == 6 and today <= fig3
+    assert {p.resolved["hyperparameters"].get("random_start_steps") for p in study} == {
+        None,
+        10_000,
+    }
+
+
+@pytest.mark.slow
+def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
+    from replicate.cli import main
+
+    store, out = tmp_path / "runs", tmp_path / "report"
+    assert (
+        main(
+            [
+                "random-start",
+                "--profile",
+                "smoke",
+                "--store",
+                str(store),
+                "--out",
+                str(out),
+                "--workers",
+                "1",
+            ]
+        )
+        == 0
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    (row,) = summary["rows"]
+    assert row["env_id"] == MOUNTAINCAR and row["random_start_steps"] == [400]
+    assert row["final"]["method"] == "95% paired t-interval, 3 pairs"
+    assert len(summary["run_ids"]) == 6 and (out / "index.html").is_file()

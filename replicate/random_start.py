@@ -1,0 +1,202 @@
+"""Our V-SAC with the SAC authors' random start against today's start: the same seeds (so the
+same initial weights), with and without uniform-random actions for the first steps
+(``random_start_steps``: 10,000 on HalfCheetah and Ant in the SAC authors' code), at a
+profile's Fig. 3 budget. Today's-start runs are Fig. 3's own SAC runs (the same addresses);
+the report gives each env's paired difference in final return and area under the curve."""
+
+from __future__ import annotations
+
+import base64
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from replicate.figure_registry import FigureReport, register, seed_words, steps_words
+from replicate.profiles import BUDGETS, PROFILES, GridOutcome, report_dir
+from replicate.spec import RunSpec
+from replicate.stats import curve_area, paired_mean_difference
+from replicate.store import Run
+
+NAME = "random-start"
+SEEDS = 3
+# The SAC authors' random start per env; MountainCar's stands in for the smoke profile.
+START_STEPS = {"HalfCheetah-v5": 10_000, "Ant-v5": 10_000, "MountainCarContinuous-v0": 400}
+STUDY_ENVS = ("HalfCheetah-v5", "Ant-v5")
+
+
+def study_envs(profile: str) -> list[str]:
+    envs = [e for e in STUDY_ENVS if e in BUDGETS["fig3"][profile]]
+    return envs or (["MountainCarContinuous-v0"] if not PROFILES[profile].meaningful else [])
+
+
+def random_start_grid(profile: str, seeds: int | None = None) -> list[RunSpec]:
+    """SAC on the study's envs, each seed with today's start (Fig. 3's run) and the random
+    start."""
+    from replicate.experiments import algorithm_overrides
+
+    chosen = PROFILES[profile]
+    specs = []
+    for env_id in study_envs(profile):
+        steps, interval = BUDGETS["fig3"][profile][env_id]
+        for start in (0, START_STEPS[env_id]):
+            hyper = dict(algorithm_overrides("sac", chosen.overrides), random_start_steps=start)
+            specs += [
+                RunSpec("sac", env_id, seed, steps, interval, chosen.eval_episodes, hyper)
+                for seed in range(SEEDS if seeds is None else seeds)
+            ]
+    return specs
+
+
+def command(profile: str) -> str:
+    return f"nox -s sac-random-start -- --profile {profile}"
+
+
+def _start(run: Run) -> int:
+    return int(run.spec["hyperparameters"].get("random_start_steps", 0))
+
+
+def _area(run: Run) -> float:
+    return float(curve_area(run.curve["step"].to_numpy(float), run.curve["return_mean"])[0])
+
+
+def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
+    """Per env: each start's runs by seed, and the paired differences (random minus today's)
+    over the seeds that have both."""
+    rows = []
+    for env_id in sorted({r.spec["env_id"] for r in runs}):
+        here = [r for r in runs if r.spec["env_id"] == env_id]
+        today = {r.spec["seed"]: r for r in here if _start(r) == 0}
+        random = {r.spec["seed"]: r for r in here if _start(r) > 0}
+        shared = sorted(set(today) & set(random))
+        quantity = f"{env_id}: SAC with a random start minus today's start"
+
+        def paired(values: Any, what: str) -> dict[str, Any]:
+            return paired_mean_difference(
+                np.array([values(random[s]) for s in shared]),
+                np.array([values(today[s]) for s in shared]),
+                f"{quantity}, {what}",
+            ).as_dict()
+
+        rows.append(
+            {
+                "env_id": env_id,
+                "steps": int(here[0].spec["total_steps"]),
+                "random_start_steps": sorted({_start(r) for r in random.values()}),
+                "today": {s: today[s].final_return for s in sorted(today)},
+                "random": {s: random[s].final_return for s in sorted(random)},
+                "final": paired(lambda r: r.final_return, "final return") if shared else None,
+                "area": paired(_area, "area under the curve") if shared else None,
+                "runs": sorted(r.path.name for r in here),
+            }
+        )
+    return rows
+
+
+def curves_png(runs: list[Run], title: str) -> bytes:
+    from matplotlib.lines import Line2D
+
+    from replicate.figures import (
+        FIG3_COLUMNS,
+        algo_color,
+        format_steps_axis,
+        panel_grid,
+        png_bytes,
+        set_theme,
+        shared_legend,
+    )
+
+    set_theme()
+    envs = sorted({r.spec["env_id"] for r in runs})
+    fig, axes, slot = panel_grid(len(envs), FIG3_COLUMNS, 3.6, legend_height=0.6)
+    colour = algo_color("sac")
+    for ax, env_id in zip(axes, envs, strict=True):
+        for run in (r for r in runs if r.spec["env_id"] == env_id):
+            style = "--" if _start(run) else "-"
+            ax.plot(run.curve["step"], run.curve["return_mean"], style, color=colour, lw=1.2)
+        ax.set_title(env_id)
+        ax.set_ylabel("return")
+        format_steps_axis(ax)
+    handles = [Line2D([], [], color=colour, ls="-"), Line2D([], [], color=colour, ls="--")]
+    shared_legend(fig, handles, ["today's start (initial policy)", "random start"], slot)
+    fig.suptitle(title)
+    return png_bytes(fig)
+
+
+def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path) -> Path:
+    from replicate.report import _atomic_write, summary_bytes
+    from replicate.templating import report_environment
+
+    rows = comparison_rows(outcome.runs)
+    title = f"SAC's random start against today's, profile '{profile}'"
+    context = {
+        "title": title,
+        "profile": profile,
+        "rows": rows,
+        "missing": outcome.skipped,
+        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "figure_png_b64": base64.b64encode(curves_png(outcome.runs, title)).decode(),
+    }
+    html = report_environment().get_template("random_start.html").render(**context)
+    out_dir = Path(out_dir)
+    _atomic_write(out_dir / "index.html", html.encode())
+    summary = {
+        "profile": profile,
+        "generated": context["generated"],
+        "run_ids": [run for row in rows for run in row["runs"]],
+        "rows": rows,
+        "missing": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
+    }
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
+    return out_dir / "index.html"
+
+
+def run_random_start(
+    profile: str = "reduced",
+    store: Path = Path("runs"),
+    out_dir: Path | None = None,
+    dry_run: bool = False,
+    **grid_options: Any,
+) -> Path | None:
+    """Train what the study lacks (the random-start runs; today's are Fig. 3's) and write
+    its report."""
+    from replicate.experiments import train_and_report
+
+    out = Path(out_dir or report_dir(profile, NAME))
+    return train_and_report(
+        random_start_grid(profile),
+        [],
+        profile,
+        command(profile),
+        Path(store),
+        out,
+        lambda outcome, where: write_random_start_report(outcome, profile, where),
+        dry_run=dry_run,
+        **grid_options,
+    )
+
+
+def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path | None:
+    from replicate.experiments import stored_outcome
+
+    outcome = stored_outcome(
+        random_start_grid(profile, seeds), [], profile, store, command(profile)
+    )
+    if outcome is None or not any(_start(r) for r in outcome.runs):
+        return None  # nothing of its own yet: Fig. 3 shows today's start
+    return write_random_start_report(outcome, profile, out_dir)
+
+
+def describe(summary: dict[str, Any]) -> dict[str, str]:
+    steps = sorted({row["steps"] for row in summary["rows"]})
+    return {
+        "covers": "SAC with the SAC authors' random start against today's start",
+        "budget": " to ".join(dict.fromkeys(steps_words(s) for s in (steps[0], steps[-1])))
+        if steps
+        else "",
+        "seeds": seed_words([len(row["random"]) for row in summary["rows"]]),
+    }
+
+
+register(FigureReport(NAME, rebuild, describe))
