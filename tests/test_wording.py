@@ -10,13 +10,17 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-WORDS = re.compile(
-    r"\bloans?\b|\blent\b|working sessions?|borrowed GPU|machine time", re.IGNORECASE
+# Each phrase with a space or a character class in the middle, so that this file does not
+# match its own pattern and needs no exception of its own.
+PHRASES = (
+    r"\bl[o]ans?\b",
+    r"\bl[e]nt\b",
+    r"working[ ]sessions?",
+    r"borrowed[ ]GPU",
+    r"machine[ ]time",
 )
-SKIPPED = (
-    "runs/",  # the run store: committed provenance records as they were written
-    "tests/test_wording.py",  # the list itself
-)
+WORDS = re.compile("|".join(PHRASES), re.IGNORECASE)
+SKIPPED = ("runs/",)  # the run store: committed provenance records as they were written
 
 
 def tracked_files() -> list[Path]:
