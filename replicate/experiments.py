@@ -63,6 +63,7 @@ from replicate.runner import (
     prepare,
 )
 from replicate.spec import RunSpec
+from replicate.store import completed_runs
 
 
 def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -226,19 +227,11 @@ def measured_rates(store: Path, on_gpu: bool = False) -> dict[tuple[str, str], f
     on CPU, or with ``on_gpu`` of those trained on a GPU where an (algorithm, env) has any,
     else on CPU (a GPU batch steps several times faster than a CPU process, so a CPU plan
     never takes a GPU's speed)."""
-    from baselines.common.device import device_kind
-
     rates: dict[tuple[bool, str, str], list[float]] = {}
-    if store.is_dir():
-        for path in store.iterdir():
-            if is_complete(path):
-                run = load_run(path)
-                rate = run.provenance.get("env_steps_per_s")
-                if rate:
-                    rate *= (run.provenance.get("batch") or {}).get("size", 1)
-                    gpu = device_kind(str(run.provenance.get("device", "cpu"))) == "cuda"
-                    key = (gpu, run.spec["algo"], run.spec["env_id"])
-                    rates.setdefault(key, []).append(rate)
+    for run in completed_runs(store):
+        if run.process_rate is not None:
+            key = (run.trained_on_gpu, run.spec["algo"], run.spec["env_id"])
+            rates.setdefault(key, []).append(run.process_rate)
     means = {key: sum(values) / len(values) for key, values in rates.items()}
     chosen = {(algo, env_id): rate for (gpu, algo, env_id), rate in means.items() if not gpu}
     if on_gpu:

@@ -51,6 +51,13 @@ def steps_words(n: int) -> str:
     return f"{n / 1000:g}k" if n >= 1000 else str(n)
 
 
+def budget_words(steps: list[int]) -> str:
+    """The range of budgets, e.g. '20k to 200k', or one budget alone; '' for none."""
+    if not steps:
+        return ""
+    return " to ".join(dict.fromkeys(steps_words(s) for s in (min(steps), max(steps))))
+
+
 def seed_words(counts: list[int]) -> str:
     if not counts:
         return ""
@@ -114,12 +121,9 @@ def _describe_fig4(summary: dict[str, Any]) -> dict[str, str]:
 
 
 def _describe_rlfd(summary: dict[str, Any]) -> dict[str, str]:
-    budgets = sorted({steps for steps, _ in summary.get("budgets", {}).values()})
     return {
         "covers": "DRL-EG against IBRL, RLPD, JSRL, SAC and DDPGfD on shared demonstrations",
-        "budget": " to ".join(dict.fromkeys(steps_words(b) for b in (budgets[0], budgets[-1])))
-        if budgets
-        else "",
+        "budget": budget_words([steps for steps, _ in summary.get("budgets", {}).values()]),
         "seeds": seed_words([c["n"] for c in summary["cells"]]),
     }
 

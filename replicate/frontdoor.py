@@ -15,6 +15,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from replicate.figure_registry import seed_words
 from replicate.figure_registry import steps_words as _steps
 from replicate.templating import report_environment
 
@@ -131,13 +132,7 @@ def verdict_table(entries: list[ReportEntry]) -> tuple[list[str], list[dict[str,
                 "verdict": claim["verdict"].split(":")[0],
                 "href": f"{report.path}/index.html#claim-{claim_id}",
                 "budget": _steps(claim["steps"]) if claim.get("steps") else "",
-                "seeds": (
-                    ""
-                    if not seeds
-                    else f"{seeds[0]} seeds"
-                    if seeds[0] == seeds[1]
-                    else f"{seeds[0]}-{seeds[1]} seeds"
-                ),
+                "seeds": seed_words(seeds or []),
                 "decides": claim.get("decides", []),
                 "not_met": claim.get("not_met", []),
             }

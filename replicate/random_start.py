@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from replicate.figure_registry import FigureReport, register, seed_words, steps_words
+from replicate.figure_registry import FigureReport, budget_words, register, seed_words
 from replicate.profiles import BUDGETS, PROFILES, GridOutcome, report_dir
 from replicate.spec import RunSpec
 from replicate.stats import curve_area, paired_mean_difference
@@ -189,12 +189,9 @@ def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path
 
 
 def describe(summary: dict[str, Any]) -> dict[str, str]:
-    steps = sorted({row["steps"] for row in summary["rows"]})
     return {
         "covers": "SAC with the SAC authors' random start against today's start",
-        "budget": " to ".join(dict.fromkeys(steps_words(s) for s in (steps[0], steps[-1])))
-        if steps
-        else "",
+        "budget": budget_words([row["steps"] for row in summary["rows"]]),
         "seeds": seed_words([len(row["random"]) for row in summary["rows"]]),
     }
 

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from replicate.claims import Group
+from replicate.figure_registry import seed_words
 from replicate.profiles import PAPER_SEEDS_FIG3, Profile
 from replicate.published import published_points
 from replicate.stats import (
@@ -48,12 +49,8 @@ def training_rates(members: list[Run]) -> dict[str, float]:
     device kind, median over the runs: what more seeds of this cell would cost."""
     by_kind: dict[str, list[float]] = defaultdict(list)
     for run in members:
-        rate = run.provenance.get("env_steps_per_s")
-        if not rate:
-            continue
-        batch = (run.provenance.get("batch") or {}).get("size", 1)
-        kind = "gpu" if str(run.provenance.get("device", "cpu")).startswith("cuda") else "cpu"
-        by_kind[kind].append(float(rate) * batch)
+        if run.process_rate is not None:
+            by_kind["gpu" if run.trained_on_gpu else "cpu"].append(run.process_rate)
     return {kind: float(np.median(rates)) for kind, rates in by_kind.items()}
 
 
@@ -326,11 +323,10 @@ def threats_to_validity(
         return []
     steps = sorted({int(r.spec["total_steps"]) for r in mujoco})
     counts = sorted({len(m) for (e, _), m in group_runs(mujoco).items()})
-    seeds = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
     threats = [
         f"Budget and seeds: {' and '.join(f'{s:,}' for s in steps)} env steps per MuJoCo "
         f"run, where the paper's text states no budget (the harness assumes 1M); "
-        f"{seeds} seeds per cell"
+        f"{seed_words(counts)} per cell"
         + (f", where the paper shows {paper_seeds}." if paper_seeds else ".")
     ]
     shares = defaultdict(list)

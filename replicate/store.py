@@ -39,6 +39,19 @@ class Run:
         return float(self.curve["return_mean"].iloc[-1])
 
     @property
+    def process_rate(self) -> float | None:
+        """Env steps per second of the process that trained it (a seed batch's members
+        together); None where provenance recorded no rate."""
+        rate = self.provenance.get("env_steps_per_s")
+        if not rate:
+            return None
+        return float(rate) * (self.provenance.get("batch") or {}).get("size", 1)
+
+    @property
+    def trained_on_gpu(self) -> bool:
+        return str(self.provenance.get("device", "cpu")).startswith("cuda")
+
+    @property
     def guided_share(self) -> float:
         """The share of all its training steps on which a guider chose the action (NaN for
         an algorithm that does not record it)."""
