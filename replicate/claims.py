@@ -205,9 +205,8 @@ def decide(checks: list[Check]) -> None:
     """Set every check's state: the primary ones on their own p-values, the secondary ones
     on Holm-adjusted p-values, one family per outcome over the claim's secondary checks."""
     secondary = [c for c in checks if not c.primary and not c.not_testable]
-    families: dict[str, list[float]] = {}
-    for outcome in (HOLDS, FAILS, EQUIVALENT):
-        families[outcome] = holm([c.p_values().get(outcome, np.nan) for c in secondary])
+    raw = [c.p_values() for c in secondary]
+    families = {o: holm([p.get(o, np.nan) for p in raw]) for o in (HOLDS, FAILS, EQUIVALENT)}
     for check in checks:
         if check.not_testable:
             check.state, check.adjusted = NOT_TESTABLE, {}
@@ -216,7 +215,7 @@ def decide(checks: list[Check]) -> None:
             p = check.p_values()
         else:
             k = secondary.index(check)
-            p = {o: families[o][k] for o in check.p_values()}
+            p = {o: families[o][k] for o in raw[k]}
         check.adjusted = {o: float(v) for o, v in p.items()}
         check.state = next(
             (

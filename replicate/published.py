@@ -10,6 +10,7 @@ differ from Gymnasium's -v5 (Ant's observation, healthy ranges): references, not
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from importlib import resources
 from io import StringIO
@@ -114,7 +115,8 @@ class PublishedPoint:
         )
 
 
-def published_sac() -> list[PublishedPoint]:
+@functools.cache  # the files are read once per process
+def published_sac() -> tuple[PublishedPoint, ...]:
     by_name = {name: env_id for env_id, name in ENV_NAMES.items()}
     points = []
     for file in FILES:
@@ -132,7 +134,7 @@ def published_sac() -> list[PublishedPoint]:
             for row in table.itertuples()
             if row.env in by_name
         ]
-    return points
+    return tuple(points)
 
 
 def published_points(env_id: str, max_steps: int) -> list[PublishedPoint]:
