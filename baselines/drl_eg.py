@@ -26,12 +26,12 @@ from scipy.spatial import cKDTree
 from sklearn.mixture import GaussianMixture
 
 from baselines.common.buffer import ReplayBuffer
-from baselines.common.context import DemoSet, TrainContext
+from baselines.common.context import BatchContext, DemoSet
 from baselines.common.networks import mlp
+from baselines.offpolicy import OffPolicyAgent, PolicyExplorer, run_off_policy, seed_device_stream
 from baselines.registry import register
-from baselines.sac import PolicyExplorer, SACAgent, SACConfig, build_agent, run_off_policy
+from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
-from baselines.sac_twin_q import build_agent as build_twin_q_agent
 
 DISCRIMINATORS = ("functional", "gmm")
 GUIDERS = ("functional", "neural")
@@ -172,105 +172,130 @@ def fit_neural_guider(
     return net.eval()
 
 
-class Guidance:
-    """D(s) and G(s) built from the demonstrations: ``guide(s)`` is an action or None."""
+class GuidedExplorer(PolicyExplorer):
+    """Algorithm 1's choice of action for N members: member k takes its guider's action
+    while its R_demo > R_pi and D(s_k) = 1. One KD-tree of the shared demonstrations answers
+    all N states in one query; each member keeps its own T2, sigma, guider stream and gate."""
 
     def __init__(
-        self, config: DRLEGConfig, demos: DemoSet, low: np.ndarray, high: np.ndarray, seed: int
+        self,
+        agent: OffPolicyAgent,
+        configs: list,
+        demos: DemoSet,
+        low: np.ndarray,
+        high: np.ndarray,
+        seeds: list[int],
     ):
-        self.config, self.low, self.high = config, low, high
-        self.states = np.asarray(demos.observations, dtype=np.float64)
-        self.actions = np.asarray(demos.actions, dtype=np.float64)
-        self.rng = np.random.default_rng([seed, 2])  # apart from SAC's streams
-        # exact nearest neighbour in O(log n): the paper's "huge number" of demonstrations
-        # (1M pairs) costs about what 1000 do
-        self.tree = cKDTree(self.states)
-        if config.discriminator == "gmm":
-            self.gmm, self.log_threshold = fit_gmm(
-                self.states, config.gmm_components, config.gmm_threshold_quantile, seed
-            )
-        if config.guider == "neural":
-            self.net = fit_neural_guider(
-                demos, config.neural_guider_hidden, config.neural_guider_steps, seed
-            )
-
-    def guide(self, state: np.ndarray) -> np.ndarray | None:
-        cfg = self.config
-        index = -1
-        if cfg.discriminator == "functional":
-            # Only a neighbour within T2 matters, so the search stops at T2: a state far
-            # from every demonstration, the common case, costs almost nothing.
-            # the tree's bound is strict and squared: widen it a hair, then test <= T2
-            bound = cfg.guide_threshold * (1 + 1e-9) + 1e-150
-            distance, index = self.tree.query(state, distance_upper_bound=bound)
-            guided = functional_discriminator(distance, cfg.guide_threshold)
-        else:
-            guided = gmm_discriminator(self.gmm, state, self.log_threshold)
-        if not guided:
-            return None
-        if cfg.guider == "functional" and index < 0:
-            _, index = self.tree.query(state)
-        if cfg.guider == "functional":
-            return functional_guider(
-                self.actions, index, cfg.guide_noise_std, self.rng, self.low, self.high
-            )
-        with torch.no_grad():
-            mean = self.net(torch.as_tensor(state, dtype=torch.float32)[None]).numpy()[0]
-        noisy = mean + cfg.guide_noise_std * self.rng.standard_normal(mean.shape)
-        return np.clip(noisy, self.low, self.high).astype(np.float32)
-
-
-class GuidedExplorer(PolicyExplorer):
-    """Algorithm 1's choice of action: the guider's while R_demo > R_pi and D(s) = 1."""
-
-    def __init__(self, agent: SACAgent, guidance: Guidance, demo_return: float):
         super().__init__(agent)
-        self.guidance, self.demo_return = guidance, demo_return
-        self.policy_return = 0.0  # Algorithm 1: R_pi <- 0 before the first test
+        self.configs, self.low, self.high = configs, low, high
+        self.states = np.asarray(demos.observations, dtype=np.float64)
+        self.demo_actions = np.asarray(demos.actions, dtype=np.float64)
+        # exact nearest neighbour in O(log n): the paper's "huge number" of demonstrations
+        # (1M pairs) costs about what 1000 do; one tree answers every member
+        self.tree = cKDTree(self.states)
+        self.rngs = [np.random.default_rng([seed, 2]) for seed in seeds]  # apart from SAC's
+        # each member fits its GMM or guider MLP from its own seed
+        self.gmms = [
+            fit_gmm(self.states, c.gmm_components, c.gmm_threshold_quantile, seed)
+            if c.discriminator == "gmm"
+            else None
+            for c, seed in zip(configs, seeds)
+        ]
+        self.nets = [
+            fit_neural_guider(demos, c.neural_guider_hidden, c.neural_guider_steps, seed)
+            if c.guider == "neural"
+            else None
+            for c, seed in zip(configs, seeds)
+        ]
+        self.thresholds = np.array([c.guide_threshold for c in configs])
+        self.demo_return = demos.mean_return
+        self.policy_returns = np.zeros(len(configs))  # Algorithm 1: R_pi <- 0 before testing
 
-    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
-        if self.demo_return > self.policy_return:
-            action = self.guidance.guide(obs)
-            if action is not None:
-                return action, True
-        return self.agent.act(obs), False
+    def decide(self, obs: np.ndarray, gate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """D(s) for the members in ``gate``, and each nearest demonstration's index (-1
+        where not searched or not guided)."""
+        n = len(obs)
+        guided = np.zeros(n, dtype=bool)
+        index = np.full(n, -1)
+        functional = np.array([c.discriminator == "functional" for c in self.configs]) & gate
+        if functional.any():
+            # only a neighbour within T2 matters, so the search stops there: a state far
+            # from every demonstration, the common case, costs almost nothing (the bound is
+            # strict and squared: widen it a hair, then test <= T2)
+            bound = self.thresholds[functional].max() * (1 + 1e-9) + 1e-150
+            distance, found = self.tree.query(
+                obs[functional].astype(np.float64), distance_upper_bound=bound
+            )
+            rows = np.flatnonzero(functional)
+            for row, d, i in zip(rows, distance, found):
+                guided[row] = functional_discriminator(float(d), self.thresholds[row])
+                index[row] = i if guided[row] else -1
+        for k in np.flatnonzero(gate & ~functional):
+            gmm, log_threshold = self.gmms[k]
+            guided[k] = gmm_discriminator(gmm, obs[k].astype(np.float64), log_threshold)
+        return guided, index
 
-    def after_eval(self, mean_return: float) -> bool:
-        self.policy_return = mean_return
-        return self.demo_return > self.policy_return
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        gate = self.demo_return > self.policy_returns
+        guided, index = self.decide(obs, gate)
+        actions = self.agent.act(obs, need=~guided)
+        for k in np.flatnonzero(guided):
+            config = self.configs[k]
+            if config.guider == "functional":
+                i = index[k] if index[k] >= 0 else self.tree.query(obs[k].astype(np.float64))[1]
+                actions[k] = functional_guider(
+                    self.demo_actions, i, config.guide_noise_std, self.rngs[k], self.low, self.high
+                )
+            else:
+                with torch.no_grad():
+                    mean = self.nets[k](torch.as_tensor(obs[k], dtype=torch.float32)[None]).numpy()[
+                        0
+                    ]
+                noisy = mean + config.guide_noise_std * self.rngs[k].standard_normal(mean.shape)
+                actions[k] = np.clip(noisy, self.low, self.high).astype(np.float32)
+        return actions, guided
+
+    def after_eval(self, k: int, mean_return: float) -> bool:
+        self.policy_returns[k] = mean_return
+        return bool(self.demo_return > mean_return)
 
     def state_dict(self) -> dict[str, Any]:
-        return {"policy_return": self.policy_return, "guider_rng": self.guidance.rng}
+        return {"policy_returns": self.policy_returns.copy(), "guider_rngs": self.rngs}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.policy_return = state["policy_return"]
-        self.guidance.rng = state["guider_rng"]
+        self.policy_returns = state["policy_returns"].copy()
+        self.rngs = state["guider_rngs"]
 
 
-def _train_guided(
-    ctx: TrainContext, config: DRLEGConfig | DRLEGTwinQConfig, agent: SACAgent | TwinQSACAgent
-) -> ReplayBuffer:
-    if ctx.demos is None:
+def guided_explorer(bctx: BatchContext, agent: OffPolicyAgent, configs: list) -> GuidedExplorer:
+    """DRL-EG's explorer for the batch, over the members' shared demonstrations."""
+    demos = bctx.members[0].demos
+    if demos is None:
         raise ValueError("DRL-EG needs demonstrations")
     low = (agent.policy.action_bias - agent.policy.action_scale).cpu().numpy()
     high = (agent.policy.action_bias + agent.policy.action_scale).cpu().numpy()
-    guidance = Guidance(config, ctx.demos, low, high, ctx.seed)  # refitted the same on resume
-    return run_off_policy(ctx, agent, GuidedExplorer(agent, guidance, ctx.demos.mean_return))
+    return GuidedExplorer(agent, configs, demos, low, high, bctx.seeds)
 
 
-@register("drl-eg", DRLEGConfig, needs_demos=True, gpu=True)
-def train(ctx: TrainContext, config: DRLEGConfig) -> ReplayBuffer:
+def _train_guided(bctx: BatchContext, configs: list, agent_cls: type) -> ReplayBuffer:
+    agent = agent_cls(bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs)
+    seed_device_stream(bctx)
+    return run_off_policy(bctx, agent, guided_explorer(bctx, agent, configs))
+
+
+@register("drl-eg", DRLEGConfig, needs_demos=True, gpu=True, batchable=True)
+def train(bctx: BatchContext, configs: list[DRLEGConfig]) -> ReplayBuffer:
     """DRL-EG with the functional D(s) and G(s) of the paper, on top of SAC."""
-    return _train_guided(ctx, config, build_agent(ctx, config))
+    return _train_guided(bctx, configs, SACAgent)
 
 
-@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True, gpu=True)
-def train_gmm(ctx: TrainContext, config: DRLEGGMMConfig) -> ReplayBuffer:
+@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True, gpu=True, batchable=True)
+def train_gmm(bctx: BatchContext, configs: list[DRLEGGMMConfig]) -> ReplayBuffer:
     """DRL-EG with the GMM discriminator (density above T) and the functional guider."""
-    return _train_guided(ctx, config, build_agent(ctx, config))
+    return _train_guided(bctx, configs, SACAgent)
 
 
-@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True, gpu=True)
-def train_twin_q(ctx: TrainContext, config: DRLEGTwinQConfig) -> ReplayBuffer:
+@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True, gpu=True, batchable=True)
+def train_twin_q(bctx: BatchContext, configs: list[DRLEGTwinQConfig]) -> ReplayBuffer:
     """DRL-EG's guidance on twin-Q, learned-temperature SAC (not the paper's; SB3's SAC)."""
-    return _train_guided(ctx, config, build_twin_q_agent(ctx, config))
+    return _train_guided(bctx, configs, TwinQSACAgent)

@@ -18,7 +18,7 @@ comparison of "act with the demonstrations" against DRL-EG's "guide only near th
 guider, reused). Where the demonstration file holds transitions, they are preloaded into
 the replay buffer as IBRL does (``preload_demos``); a file of pairs alone trains without.
 
-Built on the harness's twin-Q SAC (``baselines.sac_twin_q``): its agent, networks, losses,
+Built on the harness's twin-Q SAC (``baselines.sac_twin_q``): its networks, losses,
 temperature and training loop are reused unchanged; only the next-state value of the
 critic target and the choice of the executed action are IBRL's. IBRL itself is built on
 TD3; SAC's entropy term stays the actor's: -alpha log pi(a'|s') of the actor's own proposal
@@ -29,18 +29,19 @@ Not implemented: IBRL's soft (Boltzmann) selection, its actor dropout and critic
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.context import DemoSet, TrainContext
+from baselines.common.buffer import ReplayBuffer
+from baselines.common.context import BatchContext, DemoSet
+from baselines.common.stacked import StackedReplay, critic_pairs
 from baselines.drl_eg import fit_neural_guider, functional_guider
+from baselines.offpolicy import PolicyExplorer, action_space, run_off_policy, seed_device_stream
 from baselines.registry import register
-from baselines.sac import PolicyExplorer, run_off_policy
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
-from envs import make_env
 
 IMITATION_POLICIES = ("functional", "bc")
 
@@ -103,50 +104,98 @@ class ImitationPolicy:
 
 
 class IBRLAgent(TwinQSACAgent):
-    """Twin-Q SAC whose acting and critic target choose between the actor and ``imitation``."""
+    """IBRL for N members: twin-Q SAC's networks; each member acts and bootstraps with the
+    higher-valued (by its target critics) of its actor's proposal and its imitation
+    policy's, and its replay starts with the demonstration transitions. The imitation
+    actions come from the CPU (a KD-tree query or a BC net), so no step is a CUDA graph."""
 
     def __init__(
         self,
-        obs_dim: int,
-        act_dim: int,
-        action_low: np.ndarray,
-        action_high: np.ndarray,
+        seeds: list[int],
+        env_id: str,
         config: IBRLConfig,
-        seed: int,
-        imitation: ImitationPolicy,
+        imitations: list[ImitationPolicy],
+        demos: Any,
         device: str = "cpu",
-        cuda_graphs: bool = True,
     ):
-        super().__init__(
-            obs_dim, act_dim, action_low, action_high, config, seed, device, cuda_graphs
-        )
-        self.imitation = imitation
+        super().__init__(seeds, env_id, config, device, cuda_graphs=False)
+        self.imitations = imitations
+        self.demos = demos  # a DemoSet with transitions to preload, or None
+
+    def imitation_actions(self, states: np.ndarray) -> np.ndarray:
+        """mu_k(s) of member k's states (N, B, obs_dim): (N, B, act_dim) float32."""
+        if self.config.imitation == "functional":  # one tree answers every member
+            flat = self.imitations[0](states.reshape(-1, states.shape[-1]))
+            return flat.reshape(*states.shape[:2], -1).astype(np.float32)
+        return np.stack([mu(rows) for mu, rows in zip(self.imitations, states)])
 
     @torch.no_grad()
-    def target_q(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        """min_i Q'_i(s, a): the value IBRL compares proposals by."""
-        return self.critics_target(obs, actions).min(dim=0).values
+    def propose(self, obs: np.ndarray, deterministic: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Each member's executed action and whether its imitation policy proposed it; the
+        actor's proposal is sampled unless ``deterministic``, and ties go to the actor."""
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(self.device)[
+            :, None, :
+        ]
+        if deterministic:
+            rl_action = self.policy.deterministic(obs_t)
+        else:
+            noise = (
+                self._member_noise(1)
+                if self.device.type == "cpu"
+                else torch.randn((self.members, 1, self.act_dim), device=self.device)
+            )
+            rl_action, _ = self.policy.sample(obs_t, noise=noise.to(self.device))
+        il_action = torch.from_numpy(self.imitation_actions(obs[:, None, :])).to(self.device)
+        pair = torch.cat([rl_action, il_action], dim=1)  # (N, 2, act_dim)
+        q = (
+            critic_pairs(self.critics_target, obs_t.expand(-1, 2, -1), pair).min(dim=1).values
+        )  # (N, 2): min over each member's two critics
+        imitated = q[:, 1] > q[:, 0]
+        action = torch.where(imitated[:, None], pair[:, 1], pair[:, 0])
+        return action.cpu().numpy(), imitated.cpu().numpy()
 
-    @torch.no_grad()
-    def propose(self, obs: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, bool]:
-        """The executed action and whether the imitation policy proposed it. The actor's
-        proposal is sampled (its exploration) unless ``deterministic``; ties go to the actor."""
-        rl_action = super().act(obs, deterministic)
-        il_action = self.imitation(obs[None])[0]
-        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=self.device).expand(2, -1)
-        pair = torch.as_tensor(np.stack([rl_action, il_action]), device=self.device)
-        q_rl, q_il = self.target_q(obs_t, pair).cpu().tolist()
-        return (il_action, True) if q_il > q_rl else (rl_action, False)
+    def act(self, obs: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+        return self.propose(obs, deterministic=False)[0]
 
-    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        if deterministic and not self.config.eval_with_imitation:
-            return super().act(obs, deterministic=True)
-        return self.propose(obs, deterministic)[0]
+    def act_deterministic(self, obs: np.ndarray) -> np.ndarray:
+        if not self.config.eval_with_imitation:
+            return super().act_deterministic(obs)
+        return self.propose(obs, deterministic=True)[0]
 
-    def target_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
+    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
+        """Each member's replay, the demonstration transitions first."""
+        if self.demos is None:
+            return super().make_replay(members, obs_dim, capacity)
+        n = len(self.demos.observations)
+        replay = StackedReplay(members, obs_dim, self.act_dim, n + capacity, self.device)
+
+        def tile(x: Any) -> np.ndarray:  # one transition, the same for every member
+            return np.repeat(np.asarray(x, dtype=np.float32)[None], members, axis=0)
+
+        for i in range(n):
+            replay.add(
+                tile(self.demos.observations[i]),
+                tile(self.demos.actions[i]),
+                tile(self.demos.rewards[i]),
+                tile(self.demos.next_observations[i]),
+                tile(float(bool(self.demos.terminated[i]))),
+            )
+        return replay
+
+    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
+        if self.device.type == "cpu":
+            batch = self.buffer.sample(self.batch_size, rngs)
+            noise = self._cpu_noise()
+        else:
+            uniform = torch.rand((self.members, self.batch_size), device=self.device)
+            size = self.buffer.size
+            batch = self.buffer.gather((uniform * size).long().clamp_(max=size - 1))
+            noise = self._device_noise(batch)
         # mu(s') is computed off the gradient step (a KD-tree query on the CPU) and passed in
-        next_obs = batch.next_observations.cpu().numpy()
-        return {"next_il_actions": torch.as_tensor(self.imitation(next_obs))}
+        next_il = self.imitation_actions(batch.next_observations.cpu().numpy())
+        return self._gradient_step(
+            batch, noise, next_il_actions=torch.from_numpy(next_il).to(self.device)
+        )
 
     def next_state_value(
         self,
@@ -155,18 +204,18 @@ class IBRLAgent(TwinQSACAgent):
         alpha: torch.Tensor,
         next_il_actions: torch.Tensor,
     ) -> torch.Tensor:
-        """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s'), with a' ~ pi(.|s')."""
+        """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s') per member, a' ~ pi(.|s')."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-        q_rl = self.target_q(next_obs, next_actions)
-        q_il = self.target_q(next_obs, next_il_actions)
+        q_rl = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
+        q_il = critic_pairs(self.critics_target, next_obs, next_il_actions).min(dim=1).values
         return torch.maximum(q_rl, q_il) - alpha * next_log_prob
 
 
 class IBRLExplorer(PolicyExplorer):
-    """Executes IBRL's choice; a step counts as guided when the imitation action won."""
+    """IBRL's choice for N members; a step counts as guided where the imitation action won."""
 
-    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
-        return self.agent.propose(obs)
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.agent.propose(obs, deterministic=False)
 
 
 def preloaded_buffer(
@@ -187,30 +236,22 @@ def preloaded_buffer(
     return buffer
 
 
-@register("ibrl", IBRLConfig, needs_demos=True, gpu=True)
-def train(ctx: TrainContext, config: IBRLConfig) -> ReplayBuffer:
+@register("ibrl", IBRLConfig, needs_demos=True, gpu=True, batchable=True)
+def train(bctx: BatchContext, configs: list[IBRLConfig]) -> ReplayBuffer:
     """IBRL (Hu et al. 2023): act and bootstrap with the better of actor and imitation policy."""
-    if ctx.demos is None:
+    demos = bctx.members[0].demos
+    if demos is None:
         raise ValueError("IBRL needs demonstrations")
-    probe = make_env(ctx.env_id)
-    obs_dim, space = probe.observation_space.shape[0], probe.action_space
-    probe.close()
-    act_dim = space.shape[0]
-    imitation = ImitationPolicy(config, ctx.demos, space.low, space.high, ctx.seed)
+    env_id = bctx.shared("env_id")
+    _, _, low, high = action_space(env_id)
+    config = configs[0]  # a batch's members differ only in their seed
+    if config.imitation == "functional":  # deterministic and seed-free: one serves all
+        imitations = [ImitationPolicy(config, demos, low, high, bctx.seeds[0])]
+    else:
+        imitations = [ImitationPolicy(config, demos, low, high, seed) for seed in bctx.seeds]
+    preload = config.preload_demos and getattr(demos, "rewards", None) is not None
     agent = IBRLAgent(
-        obs_dim,
-        act_dim,
-        space.low,
-        space.high,
-        config,
-        ctx.seed,
-        imitation,
-        device=ctx.device,
-        cuda_graphs=ctx.cuda_graphs,
+        bctx.seeds, env_id, config, imitations, demos if preload else None, bctx.device
     )
-    buffer = None
-    if config.preload_demos and getattr(ctx.demos, "rewards", None) is not None:
-        buffer = preloaded_buffer(
-            ctx.demos, obs_dim, act_dim, min(config.buffer_size, ctx.total_steps)
-        )
-    return run_off_policy(ctx, agent, IBRLExplorer(agent), buffer)
+    seed_device_stream(bctx)
+    return run_off_policy(bctx, agent, IBRLExplorer(agent))

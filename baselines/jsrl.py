@@ -31,9 +31,10 @@ The guide is an imitation policy of the demonstrations (``baselines.ibrl.Imitati
 by default DRL-EG's functional guider without noise, ``imitation="bc"`` for an MLP
 regressed on the pairs; JSRL's guides were pretrained policies. The curve is the learner's
 own deterministic evaluation (no guide steps), as for every other algorithm; the share of
-guide steps between evaluation points is its ``guided_fraction``. The stage, the best
-return, H and the curriculum env's random state are checkpointed, so a resumed run goes on
-with the same h.
+guide steps between evaluation points is its ``guided_fraction``. Each member of a seed
+batch has its own guide, curriculum env, H, stage and best return. The stage, the best
+return, H, the step within the episode and the curriculum env's random state are
+checkpointed, so a resumed run goes on with the same h.
 """
 
 from __future__ import annotations
@@ -48,12 +49,18 @@ import numpy as np
 
 from baselines.common.buffer import ReplayBuffer
 from baselines.common.checkpoint import env_rng_state, restore_env_rng
-from baselines.common.context import TrainContext
+from baselines.common.context import BatchContext
 from baselines.common.evaluation import evaluate
 from baselines.ibrl import ImitationConfig, ImitationPolicy
+from baselines.offpolicy import (
+    OffPolicyAgent,
+    PolicyExplorer,
+    action_space,
+    run_off_policy,
+    seed_device_stream,
+)
 from baselines.registry import register
-from baselines.sac import PolicyExplorer, run_off_policy
-from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig, build_agent
+from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from envs import make_env
 
 CURRICULUM_EVALS = ("jump-start", "learner")
@@ -130,83 +137,96 @@ def measure_horizon(env: gym.Env, guide: Callable[[np.ndarray], np.ndarray], epi
 
 
 class JumpStartExplorer(PolicyExplorer):
-    """Hands each episode from the guide to the learner at step h, and moves h by the rule."""
+    """Hands each member's episodes from its guide to its learner at step h, and moves each
+    member's h by the rule."""
 
     def __init__(
         self,
-        agent: TwinQSACAgent,
-        guide: ImitationPolicy,
+        agent: OffPolicyAgent,
+        guides: list[ImitationPolicy],
         config: JSRLConfig,
-        curriculum_env: gym.Env,
-        horizon: int,
+        curriculum_envs: list[gym.Env],
+        horizons: list[int],
         eval_episodes: int,
     ):
         super().__init__(agent)
-        self.guide, self.config, self.env = guide, config, curriculum_env
-        self.horizon, self.eval_episodes = horizon, eval_episodes
-        self.stage, self.best = 0, None
-        self.t, self.episode_h = 0, self.h
+        self.guides, self.config, self.envs = guides, config, curriculum_envs
+        self.horizons, self.eval_episodes = list(horizons), eval_episodes
+        n = len(guides)
+        self.stage = np.zeros(n, dtype=np.int64)
+        self.best: list[float | None] = [None] * n
+        self.t = np.zeros(n, dtype=np.int64)  # steps into each member's episode
+        self.episode_h = np.array([self.h(k) for k in range(n)])
 
-    @property
-    def h(self) -> int:
-        return guide_steps(self.horizon, self.stage, self.config.curriculum_stages)
+    def h(self, k: int) -> int:
+        return guide_steps(self.horizons[k], int(self.stage[k]), self.config.curriculum_stages)
 
-    def act_guide(self, obs: np.ndarray) -> np.ndarray:
-        return self.guide(obs[None])[0]
+    def episode_start(self, started: np.ndarray) -> None:
+        for k in np.flatnonzero(started):  # h changes only between episodes
+            self.t[k], self.episode_h[k] = 0, self.h(k)
 
-    def episode_start(self) -> None:
-        self.t, self.episode_h = 0, self.h  # h changes only between episodes
-
-    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         guided = self.t < self.episode_h
         self.t += 1
-        return (self.act_guide(obs), True) if guided else (self.agent.act(obs), False)
+        actions = self.agent.act(obs, need=~guided)
+        for k in np.flatnonzero(guided):
+            actions[k] = self.guides[k](obs[k][None])[0]
+        return actions, guided
 
-    def after_eval(self, mean_return: float) -> None:
-        if self.h == 0:  # the curriculum is over
+    def after_eval(self, k: int, mean_return: float) -> None:
+        if self.h(k) == 0:  # member k's curriculum is over
             return None
         if self.config.curriculum_eval == "jump-start":
-            learner = lambda obs: self.agent.act(obs, deterministic=True)  # noqa: E731
-            mean_return = float(
-                np.mean(
-                    jump_start_returns(
-                        self.env, self.act_guide, learner, self.h, self.eval_episodes
-                    )
-                )
+            guide = lambda obs: self.guides[k](obs[None])[0]  # noqa: E731
+            learner = lambda obs: self.agent.act_member_deterministic(k, obs)  # noqa: E731
+            returns = jump_start_returns(
+                self.envs[k], guide, learner, self.h(k), self.eval_episodes
             )
-        if advances(mean_return, self.best, self.config.tolerance):
-            self.stage += 1
-        self.best = mean_return if self.best is None else max(self.best, mean_return)
+            mean_return = float(np.mean(returns))
+        if advances(mean_return, self.best[k], self.config.tolerance):
+            self.stage[k] += 1
+        self.best[k] = mean_return if self.best[k] is None else max(self.best[k], mean_return)
         return None
 
     def state_dict(self) -> dict[str, Any]:
         return {
-            "stage": self.stage,
-            "h": self.h,
-            "best": self.best,
-            "horizon": self.horizon,
-            "curriculum_env_rng": env_rng_state(self.env),
+            "stage": self.stage.copy(),
+            "best": list(self.best),
+            "horizons": list(self.horizons),
+            "t": self.t.copy(),
+            "episode_h": self.episode_h.copy(),
+            "curriculum_env_rngs": [env_rng_state(env) for env in self.envs],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.stage, self.best, self.horizon = state["stage"], state["best"], state["horizon"]
-        restore_env_rng(self.env, state["curriculum_env_rng"])
+        self.stage, self.best = state["stage"].copy(), list(state["best"])
+        self.horizons = list(state["horizons"])
+        self.t, self.episode_h = state["t"].copy(), state["episode_h"].copy()
+        for env, rng in zip(self.envs, state["curriculum_env_rngs"], strict=True):
+            restore_env_rng(env, rng)
 
 
-@register("jsrl", JSRLConfig, needs_demos=True, gpu=True)
-def train(ctx: TrainContext, config: JSRLConfig) -> ReplayBuffer:
+@register("jsrl", JSRLConfig, needs_demos=True, gpu=True, batchable=True)
+def train(bctx: BatchContext, configs: list[JSRLConfig]) -> ReplayBuffer:
     """JSRL (Uchendu et al. 2023): a guide acts for the first h steps, h falls by a curriculum."""
-    if ctx.demos is None:
+    demos = bctx.members[0].demos
+    if demos is None:
         raise ValueError("JSRL needs demonstrations")
-    agent = build_agent(ctx, config)
-    curriculum_env = make_env(ctx.env_id, seed=ctx.seed + CURRICULUM_SEED_OFFSET)
-    space = curriculum_env.action_space
-    guide = ImitationPolicy(config, ctx.demos, space.low, space.high, ctx.seed)
-    horizon = config.guide_horizon or measure_horizon(
-        curriculum_env, lambda obs: guide(obs[None])[0], config.horizon_episodes
-    )
-    explorer = JumpStartExplorer(agent, guide, config, curriculum_env, horizon, ctx.eval_episodes)
+    env_id, config = bctx.shared("env_id"), configs[0]
+    agent = TwinQSACAgent(bctx.seeds, env_id, config, bctx.device, bctx.cuda_graphs)
+    seed_device_stream(bctx)
+    _, _, low, high = action_space(env_id)
+    envs = [make_env(env_id, seed=seed + CURRICULUM_SEED_OFFSET) for seed in bctx.seeds]
     try:
-        return run_off_policy(ctx, agent, explorer)
+        guides = [ImitationPolicy(config, demos, low, high, seed) for seed in bctx.seeds]
+        horizons = [
+            config.guide_horizon
+            or measure_horizon(env, lambda obs, g=guide: g(obs[None])[0], config.horizon_episodes)
+            for env, guide in zip(envs, guides)
+        ]
+        eval_episodes = bctx.shared("eval_episodes")
+        explorer = JumpStartExplorer(agent, guides, config, envs, horizons, eval_episodes)
+        return run_off_policy(bctx, agent, explorer)
     finally:
-        curriculum_env.close()
+        for env in envs:
+            env.close()

@@ -1,8 +1,11 @@
 """The algorithm registry: a module registers itself with one decorator and is found by name.
 
 Adding an algorithm takes one file in ``baselines/`` that defines a config dataclass and a
-``train(ctx, config)`` function decorated with :func:`register`; every module in the package
-is imported on first lookup, so nothing else needs editing.
+train function decorated with :func:`register`; every module in the package is imported on
+first lookup, so nothing else needs editing. The train function is ``train(ctx, config)``
+for one run, or with ``batchable=True`` ``train(bctx, configs)`` for a seed batch of any
+size (``baselines.common.context.BatchContext``; the SAC family, on
+``baselines.offpolicy``), which also serves single runs as batches of one.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from baselines.common.context import TrainContext
+from baselines.common.context import BatchContext, TrainContext
 from baselines.common.device import flush_denormals
 
 
@@ -27,6 +30,13 @@ class Algorithm:
     needs_demos: bool
     summary: str
     gpu: bool = False  # honours ``ctx.device``; the others always train on CPU
+    # the seed-batch trainer ``train_batch(bctx, configs)``; None: one run per process
+    train_batch: Callable[[BatchContext, list[Any]], Any] | None = None
+    module: str = ""  # where it is defined
+
+    @property
+    def batchable(self) -> bool:
+        return self.train_batch is not None
 
     def make_config(self, overrides: dict[str, Any] | None = None) -> Any:
         """The default config with ``overrides`` applied; unknown keys raise ``KeyError``."""
@@ -45,21 +55,40 @@ _discovered = False
 
 
 def register(
-    name: str, config_cls: type, needs_demos: bool = False, gpu: bool = False
+    name: str,
+    config_cls: type,
+    needs_demos: bool = False,
+    gpu: bool = False,
+    batchable: bool = False,
 ) -> Callable[[Callable], Callable]:
-    """Decorator for an algorithm's ``train`` function."""
+    """Decorator for an algorithm's train function: ``train(ctx, config)``, or with
+    ``batchable`` ``train(bctx, configs)``."""
 
     def wrap(train: Callable) -> Callable:
-        registered = _REGISTRY[name].train if name in _REGISTRY else None
-        if registered is not None and getattr(registered, "__wrapped__", None) is not train:
+        if name in _REGISTRY and _REGISTRY[name].module != train.__module__:
             raise ValueError(f"algorithm '{name}' registered twice")
         summary = (train.__doc__ or "").strip().splitlines()[0] if train.__doc__ else ""
+        batch = _flushing_denormals(train) if batchable else None
+        one_run = _batch_of_one(batch) if batch is not None else _flushing_denormals(train)
         _REGISTRY[name] = Algorithm(
-            name, config_cls, _flushing_denormals(train), needs_demos, summary, gpu
+            name, config_cls, one_run, needs_demos, summary, gpu, batch, train.__module__
         )
         return train
 
     return wrap
+
+
+def _batch_of_one(train_batch: Callable) -> Callable[[TrainContext, Any], Any]:
+    """One run of a batchable algorithm: a batch of one, whose failure is the run's."""
+
+    def train(ctx: TrainContext, config: Any) -> Any:
+        failures: dict[int, str] = {}
+        result = train_batch(BatchContext.of_one(ctx, failures.__setitem__), [config])
+        if failures:
+            raise FloatingPointError(failures[0])
+        return result
+
+    return train
 
 
 def _flushing_denormals(train: Callable) -> Callable:
@@ -73,31 +102,14 @@ def _flushing_denormals(train: Callable) -> Callable:
     return flushed
 
 
-_BATCHED: dict[str, Callable] = {}
-
-
-def register_batched(name: str) -> Callable[[Callable], Callable]:
-    """Decorator for a seed-batched trainer of algorithm ``name``: ``train(bctx, configs)``
-    trains the members of a ``baselines.batched.BatchContext`` together."""
-
-    def wrap(train: Callable) -> Callable:
-        _BATCHED[name] = _flushing_denormals(train)
-        return train
-
-    return wrap
-
-
 def batched_trainer(name: str) -> Callable | None:
-    """The seed-batched trainer of ``name``, or None where it has none (PPO, DDPGfD)."""
-    _discover()
-    return _BATCHED.get(name)
+    """The seed-batch trainer of ``name``, or None where it has none (PPO, DDPGfD)."""
+    return get_algorithm(name).train_batch
 
 
 def batchable_algorithms() -> list[str]:
-    """The algorithms that have a seed-batched trainer, sorted: what messages and help
-    texts name."""
-    _discover()
-    return sorted(_BATCHED)
+    """The algorithms that train in seed batches, sorted: what messages and help texts name."""
+    return sorted(name for name, algorithm in algorithms().items() if algorithm.batchable)
 
 
 def _discover() -> None:

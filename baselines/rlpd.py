@@ -35,7 +35,6 @@ network initialisation is torch's default, not Xavier.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,15 +42,20 @@ import numpy as np
 import torch
 
 from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.context import DemoSet, TrainContext
-from baselines.common.device import GraphedStep, make_adam
-from baselines.common.networks import soft_update
-from baselines.common.stacked import layer_norm_mlp
+from baselines.common.context import BatchContext, DemoSet
+from baselines.common.device import GraphedStep
+from baselines.common.networks import TanhGaussianPolicy
+from baselines.common.stacked import (
+    StackedReplay,
+    StackedSymmetricReplay,
+    critic_ensembles,
+    layer_norm_mlp,
+)
 from baselines.ibrl import preloaded_buffer
+from baselines.offpolicy import PolicyExplorer, action_space, run_off_policy, seed_device_stream
 from baselines.registry import register
-from baselines.sac import PolicyExplorer, frozen, run_off_policy
+from baselines.sac import frozen
 from baselines.sac_twin_q import CriticEnsemble, TwinQSACAgent, TwinQSACConfig
-from envs import make_env
 
 
 @dataclass
@@ -102,149 +106,156 @@ class LayerNormCriticEnsemble(CriticEnsemble):
         ).squeeze(-1)
 
 
-class SymmetricReplay(ReplayBuffer):
-    """The online replay buffer, whose every sample is half demonstration transitions."""
-
-    def __init__(self, demos: DemoSet, obs_dim: int, act_dim: int, capacity: int):
-        super().__init__(obs_dim, act_dim, capacity)
-        self.demos = preloaded_buffer(demos, obs_dim, act_dim, online_capacity=0)
-
-    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
-        """``batch_size // 2`` demonstration rows first, then the online rows."""
-        offline = self.demos.sample(batch_size // 2, rng)
-        online = super().sample(batch_size - batch_size // 2, rng)
-        return Batch(
-            *(
-                torch.cat([getattr(offline, name), getattr(online, name)])
-                for name in (
-                    "observations",
-                    "actions",
-                    "rewards",
-                    "next_observations",
-                    "terminated",
-                )
-            )
-        )
-
-
 class RLPDAgent(TwinQSACAgent):
-    """Twin-Q SAC's policy and temperature with RLPD's critics and gradient steps."""
+    """RLPD for N members: twin-Q SAC's policy and temperature, each member's ensemble of
+    LayerNorm critics (its target a minimum over its own random subset of them), minibatches
+    half demonstrations, and ``utd`` critic steps per actor step."""
 
     def __init__(
         self,
-        obs_dim: int,
-        act_dim: int,
-        action_low: np.ndarray,
-        action_high: np.ndarray,
+        seeds: list[int],
+        env_id: str,
         config: RLPDConfig,
-        seed: int,
+        demos: ReplayBuffer,
         device: str = "cpu",
         cuda_graphs: bool = True,
     ):
-        # the policy, temperature and noise stream twin-Q SAC has for this seed
-        super().__init__(
-            obs_dim, act_dim, action_low, action_high, config, seed, device, cuda_graphs
-        )
-        # RLPD's ensemble replaces the twin critics, drawn next from the same seeded stream
-        ensemble = LayerNormCriticEnsemble if config.critic_layer_norm else CriticEnsemble
-        self.critics = ensemble(obs_dim, act_dim, config.hidden_sizes, n=config.num_qs).to(
-            self.device
-        )
-        self.critics_target = copy.deepcopy(self.critics)
-        self.critic_optimizer = make_adam(
-            self.critics.parameters(), config.learning_rate, self.device, True
-        )
-        self.critic_step = GraphedStep(self._critic_step, self.device, cuda_graphs)
-        self.actor_step = GraphedStep(self._actor_step, self.device, cuda_graphs)
+        self.per_member = config.num_qs
+        self.demos = demos  # the demonstration transitions
+        super().__init__(seeds, env_id, config, device, cuda_graphs)
         self.critic_updates = 0
+        self._critic_graph = GraphedStep(self._sample_and_critic_step, self.device, cuda_graphs)
 
-    def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "critic_updates": self.critic_updates}
+    def member_networks(
+        self, seed: int, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
+    ) -> tuple[CriticEnsemble, TanhGaussianPolicy]:
+        """Twin-Q SAC's policy for this seed; RLPD's ensemble replaces the twin critics,
+        drawn next from the same seeded stream."""
+        _, policy = super().member_networks(seed, obs_dim, act_dim, low, high)
+        ensemble = LayerNormCriticEnsemble if self.config.critic_layer_norm else CriticEnsemble
+        return ensemble(obs_dim, act_dim, self.config.hidden_sizes, n=self.config.num_qs), policy
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        state = dict(state)
-        self.critic_updates = state.pop("critic_updates")
-        super().load_state_dict(state)
-
-    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """One critic step on ``batch``; after every ``utd``-th, one actor and temperature step."""
-        cfg = self.config
-        rows, act_dim = batch.actions.shape
-        next_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
-        subset = torch.randperm(cfg.num_qs, generator=self.noise, device=self.device)[
-            : cfg.num_min_qs
-        ]
-        losses = dict(
-            self.critic_step(
-                obs=batch.observations,
-                actions=batch.actions,
-                rewards=batch.rewards,
-                next_obs=batch.next_observations,
-                terminated=batch.terminated,
-                next_noise=next_noise,
-                subset=subset,
-            )
+    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
+        return StackedSymmetricReplay(
+            self.demos, members, obs_dim, self.act_dim, capacity, self.device
         )
+
+    def extra_state(self) -> dict[str, Any]:
+        return {"critic_updates": self.critic_updates}
+
+    def load_extra_state(self, state: dict[str, Any]) -> None:
+        self.critic_updates = state["critic_updates"]
+
+    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
+        """One critic step of every member on its own symmetric minibatch; after every
+        ``utd``-th, the actor and temperature steps too. Per-member losses (N,)."""
         self.critic_updates += 1
-        if self.critic_updates % cfg.utd == 0:
-            new_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
-            losses.update(self.actor_step(obs=batch.observations, new_noise=new_noise))
-        return losses
+        actor = self.critic_updates % self.config.utd == 0
+        if self.device.type == "cpu":
+            batch = self.buffer.sample(self.batch_size, rngs)
+            return self._rlpd_step(batch, self._cpu_noise(actor), actor)
+        self._size.fill_(self.buffer.size)
+        return (self._update_graph if actor else self._critic_graph)(size=self._size)
 
-    def next_state_value(
-        self,
-        next_obs: torch.Tensor,
-        next_noise: torch.Tensor,
-        alpha: torch.Tensor,
-        subset: torch.Tensor,
-    ) -> torch.Tensor:
-        """min over the target critics in ``subset`` at a' ~ pi(.|s'), less alpha log pi(a'|s')
-        where the entropy is backed up."""
-        next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-        next_value = self.critics_target(next_obs, next_actions)[subset].min(dim=0).values
-        if self.config.backup_entropy:
-            next_value = next_value - alpha * next_log_prob
-        return next_value
+    def _cpu_noise(self, actor: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        # member k draws next_noise, its subset, then new_noise from its own stream
+        cfg = self.config
+        next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
+        new_noise = torch.zeros_like(next_noise)
+        subsets = torch.zeros((self.members, cfg.num_min_qs), dtype=torch.long)
+        for k, generator in enumerate(self.generators):
+            next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+            subsets[k] = torch.randperm(cfg.num_qs, generator=generator)[: cfg.num_min_qs]
+            if actor:
+                new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+        return next_noise, subsets, new_noise
 
-    def _critic_step(
-        self,
-        obs: torch.Tensor,
-        actions: torch.Tensor,
-        rewards: torch.Tensor,
-        next_obs: torch.Tensor,
-        terminated: torch.Tensor,
-        next_noise: torch.Tensor,
-        subset: torch.Tensor,
+    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        cfg = self.config
+        subsets = torch.rand((self.members, cfg.num_qs), device=self.device).argsort(dim=-1)[
+            :, : cfg.num_min_qs
+        ]
+        return (
+            torch.randn(batch.actions.shape, device=self.device),
+            subsets,
+            torch.randn(batch.actions.shape, device=self.device),
+        )
+
+    def _symmetric_batch(self, size: torch.Tensor) -> Batch:
+        half = self.batch_size // 2
+        n_demos = len(self.buffer.demos)
+        # a bound from a Python number: a tensor made here would copy to the device, which
+        # graph capture forbids
+        demo = (
+            (torch.rand((self.members, half), device=self.device) * n_demos)
+            .long()
+            .clamp_(max=n_demos - 1)
+        )
+        uniform = torch.rand((self.members, self.batch_size - half), device=self.device)
+        online = torch.minimum((uniform * size).long(), size - 1)
+        return self.buffer.gather_halves(demo, online)
+
+    def _sample_and_update(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+        batch = self._symmetric_batch(size)
+        return self._rlpd_step(batch, self._device_noise(batch), actor=True)
+
+    def _sample_and_critic_step(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+        batch = self._symmetric_batch(size)
+        return self._rlpd_step(batch, self._device_noise(batch), actor=False)
+
+    def _rlpd_step(
+        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor], actor: bool
     ) -> dict[str, torch.Tensor]:
         cfg = self.config
-        alpha = self.log_alpha.detach().exp()
-        with torch.no_grad():
-            next_value = self.next_state_value(next_obs, next_noise, alpha, subset)
-            y = rewards + cfg.gamma * (1.0 - terminated) * next_value
-        q_loss = (self.critics(obs, actions) - y).pow(2).mean()
-        self.critic_optimizer.zero_grad()
-        q_loss.backward()
-        self.critic_optimizer.step()
-        soft_update(self.critics_target, self.critics, cfg.tau)
-        return {"q_loss": q_loss.detach()}
+        next_noise, subsets, new_noise = (t.to(self.device) for t in noise)
+        obs, actions, rows = batch.observations, batch.actions, batch.actions.shape[1]
+        alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
-    def _actor_step(self, obs: torch.Tensor, new_noise: torch.Tensor) -> dict[str, torch.Tensor]:
-        alpha = self.log_alpha.detach().exp()
+        with torch.no_grad():
+            next_actions, next_log_prob = self.policy.sample(
+                batch.next_observations, noise=next_noise
+            )
+            next_q = critic_ensembles(
+                self.critics_target, batch.next_observations, next_actions, self.per_member
+            )  # (N, Q, B)
+            chosen = next_q.gather(1, subsets[:, :, None].expand(-1, -1, rows))
+            next_value = chosen.min(dim=1).values
+            if cfg.backup_entropy:
+                next_value = next_value - alpha * next_log_prob
+            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
+        q = critic_ensembles(self.critics, obs, actions, self.per_member)
+        q_losses = (q - y[:, None]).pow(2).mean(dim=(1, 2))  # per member: mean over Q and B
+        self.critic_optimizer.zero_grad()
+        q_losses.sum().backward()
+        self.critic_optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(
+                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
+            )
+        losses = {"q_loss": q_losses.detach()}
+        if not actor:
+            return losses
+
         new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
         with frozen(self.critics):
-            q_new = self.critics(obs, new_actions).mean(dim=0)
-        policy_loss = (alpha * log_prob - q_new).mean()
+            q_new = critic_ensembles(self.critics, obs, new_actions, self.per_member).mean(dim=1)
+        policy_losses = (alpha * log_prob - q_new).mean(-1)
         self.policy_optimizer.zero_grad()
-        policy_loss.backward()
+        policy_losses.sum().backward()
         self.policy_optimizer.step()
 
-        # RLPD's temperature loss: alpha falls while the entropy is above its target
-        entropy = -log_prob.detach().mean()
-        alpha_loss = self.log_alpha.exp() * (entropy - self.target_entropy)
+        # RLPD's temperature loss on alpha itself, each member on its own entropy
+        entropy = -log_prob.detach().mean(-1)  # (N,)
+        alpha_losses = self.log_alpha.exp() * (entropy - self.target_entropy)
         self.alpha_optimizer.zero_grad()
-        alpha_loss.sum().backward()
+        alpha_losses.sum().backward()
         self.alpha_optimizer.step()
-        return {"policy_loss": policy_loss.detach(), "alpha": alpha, "entropy": entropy}
+        return {
+            **losses,
+            "policy_loss": policy_losses.detach(),
+            "alpha": alpha[:, 0],
+            "entropy": entropy,
+        }
 
 
 def demo_transitions_or_fail(demos: DemoSet | None) -> DemoSet:
@@ -258,24 +269,13 @@ def demo_transitions_or_fail(demos: DemoSet | None) -> DemoSet:
     return demos
 
 
-@register("rlpd", RLPDConfig, needs_demos=True, gpu=True)
-def train(ctx: TrainContext, config: RLPDConfig) -> SymmetricReplay:
+@register("rlpd", RLPDConfig, needs_demos=True, gpu=True, batchable=True)
+def train(bctx: BatchContext, configs: list[RLPDConfig]) -> ReplayBuffer:
     """RLPD (Ball et al. 2023): SAC on half-demonstration batches, 10 LayerNorm critics."""
-    demos = demo_transitions_or_fail(ctx.demos)
-    probe = make_env(ctx.env_id)
-    obs_dim, space = probe.observation_space.shape[0], probe.action_space
-    probe.close()
-    agent = RLPDAgent(
-        obs_dim,
-        space.shape[0],
-        space.low,
-        space.high,
-        config,
-        ctx.seed,
-        device=ctx.device,
-        cuda_graphs=ctx.cuda_graphs,
-    )
-    buffer = SymmetricReplay(
-        demos, obs_dim, space.shape[0], min(config.buffer_size, ctx.total_steps)
-    )
-    return run_off_policy(ctx, agent, PolicyExplorer(agent), buffer)
+    demos = demo_transitions_or_fail(bctx.members[0].demos)
+    env_id = bctx.shared("env_id")
+    obs_dim, act_dim, _, _ = action_space(env_id)
+    demo_buffer = preloaded_buffer(demos, obs_dim, act_dim, online_capacity=0)
+    agent = RLPDAgent(bctx.seeds, env_id, configs[0], demo_buffer, bctx.device, bctx.cuda_graphs)
+    seed_device_stream(bctx)
+    return run_off_policy(bctx, agent, PolicyExplorer(agent))

@@ -12,7 +12,7 @@ entropy of -|A|. Per gradient step:
 It is the harness's like-for-like counterpart of SB3's SAC in the throughput bench, and the
 expert trainer for envs where the paper's V-network SAC stalls (Ant). Both critics live in
 one module whose layers are batched matrix products, so one call evaluates the pair. The
-training loop is SAC's (``baselines.sac.run_off_policy``).
+training loop is the SAC family's (``baselines.offpolicy.run_off_policy``).
 """
 
 from __future__ import annotations
@@ -20,44 +20,37 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from baselines.common.buffer import Batch, ReplayBuffer
-from baselines.common.context import TrainContext
-from baselines.common.device import GraphedStep, make_adam
-from baselines.common.networks import TanhGaussianPolicy, soft_update
+from baselines.common.context import BatchContext
+from baselines.common.networks import TanhGaussianPolicy
+from baselines.common.stacked import StackedMLP, StackedNormMLP, critic_pairs, member_adam
+from baselines.offpolicy import (
+    OffPolicyAgent,
+    OffPolicyConfig,
+    PolicyExplorer,
+    action_space,
+    run_off_policy,
+    seed_device_stream,
+    stack_policies,
+)
 from baselines.registry import register
-from baselines.sac import PolicyActor, PolicyExplorer, frozen, run_off_policy
-from envs import make_env
+from baselines.sac import frozen
 
 
 @dataclass
-class TwinQSACConfig:
+class TwinQSACConfig(OffPolicyConfig):
     """Stable-Baselines3's SAC defaults, except updates start after 1000 steps as in ``sac``."""
 
-    learning_rate: float = 3e-4
-    batch_size: int = 256
-    hidden_sizes: tuple[int, ...] = (256, 256)
-    buffer_size: int = 1_000_000
-    gamma: float = 0.99
-    tau: float = 0.005
     initial_alpha: float = 1.0
     target_entropy_per_action_dim: float = -1.0  # target entropy = this * |A|
-    learning_starts: int = 1000
-    # uniform-random actions before the policy acts (the SAC authors' code: 1,000 or
-    # 10,000); 0, the default, is kept out of a run's address (replicate/runner.py)
-    random_start_steps: int = 0
-    gradient_steps: int = 1
-    torch_threads: int = 1
 
     def __post_init__(self) -> None:
-        self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
-        if self.batch_size <= 0 or self.buffer_size <= 0 or self.gradient_steps < 1:
-            raise ValueError("batch_size, buffer_size and gradient_steps must be positive")
+        super().__post_init__()
         if self.initial_alpha <= 0:
             raise ValueError("initial_alpha must be positive")
 
@@ -92,161 +85,151 @@ class CriticEnsemble(nn.Module):
         return x.squeeze(-1)
 
 
-class TwinQSACAgent(PolicyActor):
-    """Policy, twin critics with their targets, the temperature, and one gradient step."""
+class TwinQSACAgent(OffPolicyAgent):
+    """Twin-Q, learned-temperature SAC for N members: the networks and the gradient step."""
 
     def __init__(
         self,
-        obs_dim: int,
-        act_dim: int,
-        action_low: np.ndarray,
-        action_high: np.ndarray,
+        seeds: list[int],
+        env_id: str,
         config: TwinQSACConfig,
-        seed: int,
         device: str = "cpu",
         cuda_graphs: bool = True,
     ):
-        self.config = config
-        self.device = torch.device(device)
-        torch.manual_seed(seed)
-        hidden = config.hidden_sizes
-        self.critics = CriticEnsemble(obs_dim, act_dim, hidden).to(self.device)
+        self.config, self.device = config, torch.device(device)
+        obs_dim, self.act_dim, low, high = action_space(env_id)
+        self.members = len(seeds)
+        nets = [self.member_networks(s, obs_dim, self.act_dim, low, high) for s in seeds]
+        self.critics = self._stack_ensembles([critics for critics, _ in nets]).to(self.device)
         self.critics_target = copy.deepcopy(self.critics)
-        self.policy = TanhGaussianPolicy(obs_dim, act_dim, action_low, action_high, hidden).to(
-            self.device
-        )
-        self.log_alpha = torch.tensor(
-            [math.log(config.initial_alpha)], device=self.device, requires_grad=True
-        )
-        self.target_entropy = config.target_entropy_per_action_dim * act_dim
+        self.policy = stack_policies([policy for _, policy in nets], self.device)
+        self.log_alpha = torch.full(
+            (self.members,), math.log(config.initial_alpha), device=self.device
+        ).requires_grad_(True)
+        self.target_entropy = config.target_entropy_per_action_dim * self.act_dim
         lr = config.learning_rate
-        # fused Adam: one kernel per optimiser step instead of a loop over parameters
-        self.critic_optimizer = make_adam(self.critics.parameters(), lr, self.device, True)
-        self.policy_optimizer = make_adam(self.policy.parameters(), lr, self.device, True)
-        self.alpha_optimizer = make_adam([self.log_alpha], lr, self.device, True)
-        self.noise = torch.Generator(device=self.device).manual_seed(seed + 1)
-        self.gradient_step = GraphedStep(self._gradient_step, self.device, cuda_graphs)
+        self.critic_optimizer = member_adam(self.critics.parameters(), lr, self.device)
+        self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
+        self.alpha_optimizer = member_adam([self.log_alpha], lr, self.device)
+        self.generators = [torch.Generator().manual_seed(seed + 1) for seed in seeds]
+        self._setup_acting(cuda_graphs)
+        self._setup_updates(config.batch_size, cuda_graphs)
 
-    def state_dict(self) -> dict[str, Any]:
-        modules = (
-            "critics",
-            "critics_target",
-            "policy",
-            "critic_optimizer",
-            "policy_optimizer",
-            "alpha_optimizer",
+    def member_networks(
+        self, seed: int, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
+    ) -> tuple[CriticEnsemble, TanhGaussianPolicy]:
+        """Member ``seed``'s initial critics and policy, drawn from its seed alone."""
+        torch.manual_seed(seed)
+        hidden = self.config.hidden_sizes
+        critics = CriticEnsemble(obs_dim, act_dim, hidden)
+        return critics, TanhGaussianPolicy(obs_dim, act_dim, low, high, hidden)
+
+    MODULES = (
+        "critics",
+        "critics_target",
+        "policy",
+        "critic_optimizer",
+        "policy_optimizer",
+        "alpha_optimizer",
+    )
+
+    @staticmethod
+    def _stack_ensembles(ensembles: list) -> StackedMLP:
+        """Each member's (Q, in, out) critic ensemble, member-major, as one stack of N * Q
+        (with each critic's LayerNorm gains and biases where the ensembles have them)."""
+
+        def joined(name: str) -> list[torch.Tensor]:
+            layers = getattr(ensembles[0], name)
+            return [
+                torch.cat([getattr(e, name)[i].detach() for e in ensembles])
+                for i in range(len(layers))
+            ]
+
+        if hasattr(ensembles[0], "norm_gains"):
+            return StackedNormMLP(
+                joined("weights"), joined("biases"), joined("norm_gains"), joined("norm_biases")
+            )
+        return StackedMLP(joined("weights"), joined("biases"))
+
+    def _cpu_noise(self) -> tuple[torch.Tensor, torch.Tensor]:
+        # member k draws next_noise, then new_noise, from its own stream
+        next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
+        new_noise = torch.zeros_like(next_noise)
+        for k, generator in enumerate(self.generators):
+            next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+            new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
+        return next_noise.to(self.device), new_noise.to(self.device)
+
+    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+        return (
+            torch.randn(batch.actions.shape, device=self.device),
+            torch.randn(batch.actions.shape, device=self.device),
         )
-        state = {name: getattr(self, name).state_dict() for name in modules}
-        state["log_alpha"] = self.log_alpha.detach().clone()
-        state["noise"] = self.noise.get_state()
-        return state
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        for name, value in state.items():
-            if name == "noise":
-                self.noise.set_state(value)
-            elif name == "log_alpha":
-                with torch.no_grad():
-                    self.log_alpha.copy_(value)
-            else:
-                getattr(self, name).load_state_dict(value)
-
-    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """One gradient step on ``batch``. The losses come back as 0-d tensors: reading one
-        waits for the GPU, so the training loop reads them seldom."""
-        rows, act_dim = batch.actions.shape
-        # both draws precede the step, in the order the step uses them
-        next_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
-        new_noise = torch.randn((rows, act_dim), generator=self.noise, device=self.device)
-        return self.gradient_step(
-            obs=batch.observations,
-            actions=batch.actions,
-            rewards=batch.rewards,
-            next_obs=batch.next_observations,
-            terminated=batch.terminated,
-            next_noise=next_noise,
-            new_noise=new_noise,
-            **self.target_inputs(batch),
-        )
-
-    def target_inputs(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """Further tensors that ``next_state_value`` takes (IBRL: the imitation action at s')."""
-        return {}
 
     def next_state_value(
-        self, next_obs: torch.Tensor, next_noise: torch.Tensor, alpha: torch.Tensor
+        self,
+        next_obs: torch.Tensor,
+        next_noise: torch.Tensor,
+        alpha: torch.Tensor,
+        **target_inputs: torch.Tensor,
     ) -> torch.Tensor:
-        """Soft value of s' under the target critics: min_i Q'_i(s', a') - alpha log pi(a'|s')."""
+        """Each member's soft value of s' (N, B) under its target critics (IBRL overrides)."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-        next_q = self.critics_target(next_obs, next_actions).min(dim=0).values
+        next_q = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
         return next_q - alpha * next_log_prob
 
     def _gradient_step(
-        self,
-        obs: torch.Tensor,
-        actions: torch.Tensor,
-        rewards: torch.Tensor,
-        next_obs: torch.Tensor,
-        terminated: torch.Tensor,
-        next_noise: torch.Tensor,
-        new_noise: torch.Tensor,
-        **target_inputs: torch.Tensor,
+        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor], **target_inputs: torch.Tensor
     ) -> dict[str, torch.Tensor]:
         cfg = self.config
-        alpha = self.log_alpha.detach().exp()
+        next_noise, new_noise = noise
+        obs, actions = batch.observations, batch.actions
+        alpha = self.log_alpha.detach().exp()[:, None]  # (N, 1)
 
-        # Critics regress on the soft value of the next state under the target critics.
         with torch.no_grad():
-            next_value = self.next_state_value(next_obs, next_noise, alpha, **target_inputs)
-            y = rewards + cfg.gamma * (1.0 - terminated) * next_value
-        q_loss = 0.5 * (self.critics(obs, actions) - y).pow(2).mean(dim=1).sum()
+            next_value = self.next_state_value(
+                batch.next_observations, next_noise, alpha, **target_inputs
+            )
+            y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
+        q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]).pow(2).mean(
+            -1
+        ).sum(-1)
         self.critic_optimizer.zero_grad()
-        q_loss.backward()
+        q_losses.sum().backward()
         self.critic_optimizer.step()
 
-        # The policy follows the smaller critic through the reparameterised action.
         new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
         with frozen(self.critics):
-            q_new = self.critics(obs, new_actions).min(dim=0).values
-        policy_loss = (alpha * log_prob - q_new).mean()
+            q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
+        policy_losses = (alpha * log_prob - q_new).mean(-1)
         self.policy_optimizer.zero_grad()
-        policy_loss.backward()
+        policy_losses.sum().backward()
         self.policy_optimizer.step()
 
-        # The temperature rises when the entropy falls below its target, and falls otherwise.
-        alpha_loss = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
+        alpha_losses = -(self.log_alpha[:, None] * (log_prob.detach() + self.target_entropy)).mean(
+            -1
+        )
         self.alpha_optimizer.zero_grad()
-        alpha_loss.backward()
+        alpha_losses.sum().backward()
         self.alpha_optimizer.step()
 
-        soft_update(self.critics_target, self.critics, cfg.tau)
+        with torch.no_grad():
+            torch._foreach_lerp_(
+                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
+            )
         return {
-            "q_loss": q_loss.detach(),
-            "policy_loss": policy_loss.detach(),
-            "alpha": alpha,
-            "entropy": -log_prob.detach().mean(),
+            "q_loss": q_losses.detach(),
+            "policy_loss": policy_losses.detach(),
+            "alpha": alpha[:, 0],
+            "entropy": -log_prob.detach().mean(-1),
         }
 
 
-def build_agent(ctx: TrainContext, config: TwinQSACConfig) -> TwinQSACAgent:
-    probe = make_env(ctx.env_id)
-    space = probe.action_space
-    agent = TwinQSACAgent(
-        probe.observation_space.shape[0],
-        space.shape[0],
-        space.low,
-        space.high,
-        config,
-        seed=ctx.seed,
-        device=ctx.device,
-        cuda_graphs=ctx.cuda_graphs,
-    )
-    probe.close()
-    return agent
-
-
-@register("sac-twin-q", TwinQSACConfig, gpu=True)
-def train(ctx: TrainContext, config: TwinQSACConfig) -> ReplayBuffer:
+@register("sac-twin-q", TwinQSACConfig, gpu=True, batchable=True)
+def train(bctx: BatchContext, configs: list[TwinQSACConfig]) -> ReplayBuffer:
     """SAC with twin target critics and learned temperature (SB3's SAC), for benches and experts."""
-    agent = build_agent(ctx, config)
-    return run_off_policy(ctx, agent, PolicyExplorer(agent))
+    agent = TwinQSACAgent(
+        bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs
+    )
+    seed_device_stream(bctx)
+    return run_off_policy(bctx, agent, PolicyExplorer(agent))

@@ -91,7 +91,7 @@ def regenerate_batch_replay(
 ) -> tuple[np.ndarray, list[Any], np.ndarray]:
     """The stacked replay rows (members, steps, 2 obs + act + 2) that a seed batch's envs
     produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
-    ``baselines.batched.run_stacked_off_policy`` steps them (every member alive); with the
+    ``baselines.offpolicy.run_off_policy`` steps them (every member alive); with the
     envs' snapshot and observations where the actions leave them."""
     from baselines.common.stacked import StackedReplay
     from envs.vector import EnvBatch
@@ -109,43 +109,6 @@ def regenerate_batch_replay(
     finally:
         envs.close()
     return replay.data[:, :steps].numpy(), snapshot, obs
-
-
-def regenerate_run_replay(
-    env_id: str, seed: int, actions: np.ndarray, progress: bool = False
-) -> dict[str, np.ndarray]:
-    """The one-run replay arrays that ``baselines.sac.run_off_policy``'s env produces when
-    stepped through ``actions`` (steps, act_dim) from its seed."""
-    from baselines.common.buffer import ReplayBuffer
-    from envs import make_env
-
-    env = make_env(env_id, seed=seed)
-    try:
-        replay = ReplayBuffer(
-            env.observation_space.shape[0], actions.shape[1], max(len(actions), 1)
-        )
-        obs, _ = env.reset(seed=seed)
-        for t in _steps(len(actions), f"{env_id} seed {seed}", progress):
-            action = actions[t]
-            next_obs, reward, terminated, truncated, _ = env.step(action)
-            replay.add(obs, action, reward, next_obs, terminated)
-            obs = next_obs
-            if terminated or truncated:
-                obs, _ = env.reset()
-    finally:
-        env.close()
-    state = replay.state_dict()
-    return {
-        name: state[name][: len(actions)]
-        for name in ("observations", "actions", "rewards", "next_observations", "terminated")
-    }
-
-
-def _run_replay_digest(arrays: dict[str, np.ndarray]) -> str:
-    joined = hashlib.sha256()
-    for name in ("observations", "actions", "rewards", "next_observations", "terminated"):
-        joined.update(_sha256(arrays[name]).encode())
-    return joined.hexdigest()
 
 
 # -- packing ------------------------------------------------------------------------------
@@ -337,68 +300,15 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     return Packed(ident, step, len(members), _size(final))
 
 
-def pack_run(store: Path, run_id: str, progress: bool = False) -> Packed:
-    """Carry the checkpoint of the one-run ``run_id`` (``<store>/.partial-<run_id>/``)."""
-    store = Path(store)
-    work = store / f".partial-{run_id}"
-    checkpoint = _load(work / CHECKPOINT_FILE)
-    spec = _run_spec(work)
-    step, buffer = int(checkpoint["step"]), checkpoint.get("buffer")
-    _not_behind(store, run_id, step)
-    names = ("observations", "actions", "rewards", "next_observations", "terminated")
-    if not isinstance(buffer, dict) or any(name not in buffer for name in names):
-        raise CarryError(
-            f"{run_id}'s checkpoint has no plain replay buffer ({spec['algo']})",
-            "let the run finish where it is",
-        )
-    if len(buffer["rewards"]) != step:
-        raise CarryError(
-            f"{run_id}'s replay holds {len(buffer['rewards'])} transitions "
-            f"after {step} steps (preloaded with demonstrations, or wrapped "
-            "around)",
-            "let the run finish where it is",
-        )
-    actions = np.ascontiguousarray(buffer["actions"])
-    rebuilt = regenerate_run_replay(spec["env_id"], spec["seed"], actions, progress)
-    if any(not np.array_equal(rebuilt[name], buffer[name]) for name in names):
-        raise CarryError(
-            f"{run_id}'s replay does not come back from its actions here",
-            "let the run finish where it is",
-        )
-    carried_state = dict(checkpoint)
-    carried_state["buffer"] = {"position": buffer["position"]}
-
-    def build(target: Path) -> None:
-        _write_state(target, carried_state, actions[None])
-        _copy_files(work, target / "partial" / run_id, RUN_FILES)
-        (target / MANIFEST_FILE).write_text(
-            json.dumps(
-                _manifest(
-                    "run",
-                    run_id,
-                    spec["env_id"],
-                    step,
-                    [run_id],
-                    [spec["seed"]],
-                    _run_replay_digest(buffer),
-                ),
-                indent=1,
-            )
-            + "\n"
-        )
-
-    final = _finish_pack(store, run_id, [run_id], work / CHECKPOINT_FILE, build)
-    return Packed(run_id, step, 1, _size(final))
-
-
 def _size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
 
 def unfinished(store: Path) -> list[tuple[str, str]]:
-    """(kind, name) of every checkpoint in the store: seed batches, then one-run runs. A
-    batch member's own directory may still hold a checkpoint of an earlier one-run attempt;
-    the batch's checkpoint is the one that counts, so that one is left out."""
+    """(kind, name) of every checkpoint in the store: seed batches (a single run of the SAC
+    family is a batch of one), then runs of the algorithms with loops of their own. A batch
+    member's own directory may still hold a checkpoint of an earlier attempt; the batch's
+    checkpoint is the one that counts, so that one is left out."""
     store = Path(store)
     batches = [p.parent for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
     in_batches = {
@@ -428,9 +338,13 @@ def prune(store: Path) -> list[str]:
 
 def _pack_one(store: Path, kind: str, name: str, progress: bool) -> Packed | str:
     """One item of ``pack_all``: what was packed, or the line that says why not."""
-    pack = pack_batch if kind == "batch" else pack_run
+    if kind == "run":
+        return (
+            f"{name} trains in a loop of its own (DDPGfD, PPO), whose replay is not "
+            "carried; fix: let it finish where it is"
+        )
     try:
-        return pack(store, name, progress)
+        return pack_batch(store, name, progress)
     except CarryError as exc:
         return str(exc)
     except (KeyError, TypeError, AttributeError) as exc:  # a loop with its own layout
@@ -565,23 +479,6 @@ def unpack_batch(store: Path, ident: str) -> bool:
     return True
 
 
-def unpack_run(store: Path, run_id: str) -> bool:
-    """Put carried one-run ``run_id`` back as ``<store>/.partial-<run_id>/``; False when it
-    is not carried."""
-    path = carried(store, run_id)
-    if path is None:
-        return False
-    manifest, state, actions = _load_carried(path, "run")
-    arrays = regenerate_run_replay(manifest["env_id"], manifest["seeds"][0], actions[0])
-    replay = _check_rebuilt(path, manifest, _run_replay_digest(arrays))
-    state["buffer"] = {**arrays, "position": state["buffer"]["position"]}
-    work = Path(store) / f".partial-{run_id}"
-    _copy_files(path / "partial" / run_id, work, RUN_FILES)
-    _note_carried(work, manifest, replay)
-    _write_checkpoint(work / CHECKPOINT_FILE, state)
-    return True
-
-
 def _write_checkpoint(path: Path, state: dict[str, Any]) -> None:
     from baselines.common.checkpoint import save_checkpoint
 
@@ -597,11 +494,12 @@ def resumable_steps(store: Path, run_ids: set[str], batches: bool = True) -> dic
     """Each of ``run_ids`` that resumes from a carried checkpoint, with the step it resumes
     at: the members of every carry whose runs are all among ``run_ids`` (a carry resumes
     only whole, ``replicate.experiments.carried_tasks``); ``batches`` False: of carried
-    runs only (an executor that trains one run per task starts a carried batch over)."""
+    single runs only (an executor that trains one run per task starts a larger carried batch
+    over)."""
     return {
         run_id: int(manifest["step"])
         for manifest in listing(store)
-        if set(manifest["members"]) <= run_ids and (batches or manifest["kind"] != "batch")
+        if set(manifest["members"]) <= run_ids and (batches or len(manifest["members"]) == 1)
         for run_id in manifest["members"]
     }
 

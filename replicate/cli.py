@@ -213,6 +213,65 @@ def _add_cell_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+CHECKPOINT_HELP = (
+    "env steps between checkpoints of each run or seed batch (0: none); an interrupted "
+    "command resumes its unfinished runs from them. A batch's holds every member's replay, "
+    "so give large batches more"
+)
+DRY_RUN_HELP = (
+    "print the runs that would train, with their env steps and estimated minutes; train "
+    "and write nothing"
+)
+
+
+def _add_grid_arguments(
+    parser: argparse.ArgumentParser,
+    out_help: str,
+    profile_default: str = "quick",
+    profile_help: str | None = None,
+    seeds_help: str | None = "number of seeds (default: the profile's)",
+    ray: bool = False,
+    cells: bool = False,
+) -> None:
+    """The options every figure command that trains a grid shares, declared once."""
+    parser.add_argument(
+        "--profile",
+        default=profile_default,
+        choices=PROFILE_NAMES,
+        help=profile_help or _profile_help(),
+    )
+    if seeds_help is not None:
+        parser.add_argument("--seeds", type=int, default=None, help=seeds_help)
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="parallel training processes (default: one per core)",
+    )
+    parser.add_argument("--store", type=Path, default=None, help=STORE_HELP)
+    parser.add_argument("--out", type=Path, default=None, help=out_help)
+    _add_device_argument(parser, grid=True)
+    if ray:
+        parser.add_argument(
+            "--executor",
+            default="local",
+            choices=["local", "ray"],
+            help="local processes, or tasks on a running Ray cluster (--address)",
+        )
+        parser.add_argument(
+            "--address",
+            default=None,
+            help="HOST:PORT of the Ray head for --executor ray; the run store must "
+            "be on a filesystem every node sees",
+        )
+    parser.add_argument("--checkpoint-interval", type=int, default=10_000, help=CHECKPOINT_HELP)
+    _add_time_limit_argument(parser)
+    if cells:
+        _add_cell_arguments(parser)
+    else:
+        parser.add_argument("--dry-run", action="store_true", help=DRY_RUN_HELP)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m replicate",
@@ -306,10 +365,11 @@ def _build_parser() -> argparse.ArgumentParser:
     expert = sub.add_parser(
         "expert",
         help="train (or resume) the harness's SAC expert of an env",
-        description="Train the SAC expert of an env with checkpoints in --root/<env>/; "
-        "started again, it resumes from the last checkpoint. The policy with the "
-        "best evaluation is exported, with its provenance, to the package's "
-        "expert file, from which `demos` rolls out demonstrations.",
+        description="Train the SAC expert of an env: one run per seed (several as one seed "
+        "batch) in the run store --root/<env>/, checkpointed; started again, it resumes. "
+        "The policy with the best evaluation of any of them is exported, with its "
+        "provenance, to the package's expert file, from which `demos` rolls out "
+        "demonstrations.",
         formatter_class=_HelpFormatter,
     )
     expert.add_argument(
@@ -326,10 +386,17 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     expert.add_argument("--seed", type=int, default=0, help="seed of the expert run")
     expert.add_argument(
+        "--seeds",
+        type=_seed_list,
+        default=None,
+        help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and keep the best "
+        "member (instead of --seed)",
+    )
+    expert.add_argument(
         "--root",
         type=Path,
         default=Path("experts"),
-        help="work directory for checkpoints and progress",
+        help="where the experts' run stores are (one per env)",
     )
     expert.add_argument(
         "--eval-interval",
@@ -341,14 +408,14 @@ def _build_parser() -> argparse.ArgumentParser:
         "--checkpoint-interval",
         type=int,
         default=10_000,
-        help="env steps between checkpoints (taken at the next episode end)",
+        help="env steps between checkpoints",
     )
     expert.add_argument(
         "--algo",
         choices=("sac", "sac-twin-q"),
         default=None,
         help="the trainer: the paper's V-network SAC, or twin-Q SAC with a "
-        "learned temperature (default: sac, but sac-twin-q for Ant-v5)",
+        "learned temperature (default: sac, but sac-twin-q for the MuJoCo envs)",
     )
     expert.add_argument(
         "--threads",
@@ -364,17 +431,11 @@ def _build_parser() -> argparse.ArgumentParser:
         help="do not train; export the best policy found so far",
     )
     expert.add_argument(
-        "--seeds",
-        type=_seed_list,
-        default=None,
-        help="train these seeds (e.g. 1-8 or 1,4,7) as one seed batch and "
-        "keep the best member; not resumed (meant for a GPU)",
-    )
-    expert.add_argument(
         "--minutes",
         type=float,
         default=None,
-        help="with --seeds: stop after this many minutes of training",
+        help="checkpoint and stop after this many minutes of training, exporting the best "
+        "policy so far (the same command goes on from there)",
     )
 
     fig3 = sub.add_parser(
@@ -384,45 +445,12 @@ def _build_parser() -> argparse.ArgumentParser:
         "trained), then write the self-contained HTML report.",
         formatter_class=_HelpFormatter,
     )
-    fig3.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
-    fig3.add_argument(
-        "--seeds", type=int, default=None, help="number of seeds (default: the profile's)"
+    _add_grid_arguments(
+        fig3,
+        "report directory (default: reports/fig3 for quick, reports/<profile>/fig3 otherwise)",
+        ray=True,
+        cells=True,
     )
-    fig3.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="parallel training processes (default: one per core)",
-    )
-    fig3.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    _add_device_argument(fig3, grid=True)
-    fig3.add_argument(
-        "--executor",
-        default="local",
-        choices=["local", "ray"],
-        help="local processes, or tasks on a running Ray cluster (--address)",
-    )
-    fig3.add_argument(
-        "--address",
-        default=None,
-        help="HOST:PORT of the Ray head for --executor ray; the run store must "
-        "be on a filesystem every node sees",
-    )
-    fig3.add_argument(
-        "--checkpoint-interval",
-        type=int,
-        default=10_000,
-        help="env steps between checkpoints of each run (0: none); an "
-        "interrupted figure resumes its unfinished runs from them",
-    )
-    _add_time_limit_argument(fig3)
-    fig3.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report directory (default: reports/fig3 for quick, reports/<profile>/fig3 otherwise)",
-    )
-    _add_cell_arguments(fig3)
 
     fig4 = sub.add_parser(
         "fig4",
@@ -432,44 +460,13 @@ def _build_parser() -> argparse.ArgumentParser:
         "seed, paired differences, claim 5.",
         formatter_class=_HelpFormatter,
     )
-    fig4.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
+    _add_grid_arguments(
+        fig4,
+        "report directory (default: reports/fig4 for quick, reports/<profile>/fig4 otherwise)",
+        seeds_help="number of seeds (default 4)",
+        ray=True,
+    )
     fig4.add_argument("--env", default="Ant-v5", help="environment (the paper's is Ant-v5)")
-    fig4.add_argument("--seeds", type=int, default=None, help="number of seeds (default 4)")
-    fig4.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="parallel training processes (default: one per core)",
-    )
-    _add_device_argument(fig4, grid=True)
-    fig4.add_argument(
-        "--executor",
-        default="local",
-        choices=["local", "ray"],
-        help="local processes, or tasks on a running Ray cluster (--address)",
-    )
-    fig4.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    fig4.add_argument(
-        "--checkpoint-interval",
-        type=int,
-        default=10_000,
-        help="env steps between checkpoints of each run or batch (0: none); "
-        "a batch's holds every member's replay, so give large ones more",
-    )
-    fig4.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    fig4.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report directory (default: reports/fig4 for quick, reports/<profile>/fig4 otherwise)",
-    )
-    fig4.add_argument(
-        "--dry-run",
-        action="store_true",
-        help="print the runs that would train, with their env steps and "
-        "estimated minutes; train and write nothing",
-    )
-    _add_time_limit_argument(fig4)
 
     ablate = sub.add_parser(
         "ablate-threshold",
@@ -480,9 +477,11 @@ def _build_parser() -> argparse.ArgumentParser:
         "workers can share one --storage.",
         formatter_class=_HelpFormatter,
     )
-    ablate.add_argument("--profile", default="quick", choices=PROFILE_NAMES, help=_profile_help())
-    ablate.add_argument(
-        "--seeds", type=int, default=None, help="number of seeds (default: the profile's)"
+    _add_grid_arguments(
+        ablate,
+        "report directory (default: reports/ablate-threshold[-<env>] for quick, under "
+        "reports/<profile>/ otherwise)",
+        ray=True,
     )
     ablate.add_argument(
         "--thresholds",
@@ -502,49 +501,12 @@ def _build_parser() -> argparse.ArgumentParser:
         "--storage", default=None, help="optuna storage URL (default: SQLite in the run store)"
     )
     ablate.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="parallel training processes (default: one per core)",
-    )
-    _add_device_argument(ablate, grid=True)
-    ablate.add_argument(
-        "--executor",
-        default="local",
-        choices=["local", "ray"],
-        help="local processes, or tasks on a running Ray cluster (--address)",
-    )
-    ablate.add_argument("--address", default=None, help="HOST:PORT of the Ray head")
-    ablate.add_argument(
         "--env",
         default="MountainCarContinuous-v0",
         help="the env to sweep: MountainCar (absolute T2 grid), or Ant-v5 or "
         "Walker2d-v5 (T2 at 1, 4, 16, 64 times the median demonstration-"
         "state spacing, and always; 3 seeds)",
     )
-    ablate.add_argument(
-        "--checkpoint-interval",
-        type=int,
-        default=10_000,
-        help="env steps between checkpoints of each run or batch (0: none); "
-        "a batch's holds every member's replay, so give large ones more",
-    )
-    ablate.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    ablate.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report directory (default: reports/ablate-threshold[-<env>] "
-        "for quick, under reports/<profile>/ otherwise)",
-    )
-    ablate.add_argument(
-        "--dry-run",
-        action="store_true",
-        help="print the runs the whole sweep would train (SAC and every "
-        "point), with their env steps and estimated minutes; train and "
-        "write nothing",
-    )
-    _add_time_limit_argument(ablate)
 
     rlfd = sub.add_parser(
         "compare-rlfd",
@@ -555,38 +517,16 @@ def _build_parser() -> argparse.ArgumentParser:
         "curves and a verdict per method and task.",
         formatter_class=_HelpFormatter,
     )
-    rlfd.add_argument(
-        "--profile",
-        default="quick",
-        choices=PROFILE_NAMES,
-        help=_profile_help(
+    _add_grid_arguments(
+        rlfd,
+        "report directory (default: reports/rlfd for quick, reports/<profile>/rlfd otherwise)",
+        profile_help=_profile_help(
             "budget profile (here quick is MountainCar; reduced "
             "adds the sparse dm-control tasks, Hopper and Ant)"
         ),
+        seeds_help="number of seeds (default 5)",
+        cells=True,
     )
-    rlfd.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
-    rlfd.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="parallel training processes (default: one per core)",
-    )
-    rlfd.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    rlfd.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report directory (default: reports/rlfd for quick, reports/<profile>/rlfd otherwise)",
-    )
-    rlfd.add_argument(
-        "--checkpoint-interval",
-        type=int,
-        default=10_000,
-        help="env steps between checkpoints of a run",
-    )
-    _add_device_argument(rlfd, grid=True)
-    _add_cell_arguments(rlfd)
-    _add_time_limit_argument(rlfd)
 
     start = sub.add_parser(
         "random-start",
@@ -597,28 +537,12 @@ def _build_parser() -> argparse.ArgumentParser:
         "paired difference in final return and area under the curve.",
         formatter_class=_HelpFormatter,
     )
-    start.add_argument("--profile", default="reduced", choices=PROFILE_NAMES, help=_profile_help())
-    start.add_argument("--store", type=Path, default=None, help=STORE_HELP)
-    start.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report directory (default: reports/<profile>/random-start)",
+    _add_grid_arguments(
+        start,
+        "report directory (default: reports/<profile>/random-start)",
+        profile_default="reduced",
+        seeds_help=None,
     )
-    start.add_argument(
-        "--workers", type=int, default=None, help="parallel training processes (one per core)"
-    )
-    start.add_argument(
-        "--checkpoint-interval",
-        type=int,
-        default=10_000,
-        help="env steps between checkpoints of a run",
-    )
-    start.add_argument(
-        "--dry-run", action="store_true", help="print what would train; train and write nothing"
-    )
-    _add_device_argument(start, grid=True)
-    _add_time_limit_argument(start)
 
     report = sub.add_parser(
         "report",
@@ -758,47 +682,25 @@ def _cmd_expert(args: argparse.Namespace) -> int:
     from replicate.errors import HarnessError
     from replicate.experts import EXPERT_ENVS
 
-    if args.minutes is not None and (args.seeds is None or args.minutes <= 0):
-        raise HarnessError(
-            "--minutes limits a seed batch: it needs --seeds and a positive "
-            f"value, got {args.minutes}",
-            "pass --seeds 1-8 --minutes 8",
-        )
+    if args.minutes is not None and args.minutes <= 0:
+        raise HarnessError(f"--minutes must be positive, got {args.minutes}", "pass --minutes 8")
     for env_id in [args.env] if args.env else EXPERT_ENVS:
         _one_expert(argparse.Namespace(**{**vars(args), "env": env_id}))
     return 0
 
 
 def _one_expert(args: argparse.Namespace) -> None:
+    import torch
     from tqdm import tqdm
 
-    from replicate.experts import export_expert, train_expert, train_expert_batch
+    from replicate.experts import export_expert, train_expert
 
     if args.export_only:
         path = export_expert(args.env, args.root)
-    elif args.seeds is not None:
-        total = args.steps * len(args.seeds)
-        with tqdm(
-            total=total,
-            unit="step",
-            desc=f"expert batch {args.env}",
-            dynamic_ncols=True,
-            mininterval=2.0,
-        ) as bar:
-            path = train_expert_batch(
-                args.env,
-                args.steps,
-                args.seeds,
-                args.root,
-                eval_interval=args.eval_interval,
-                on_steps=bar.update,
-                algo=args.algo,
-                device=args.device,
-                time_limit_s=None if args.minutes is None else 60 * args.minutes,
-            )
     else:
+        seeds = args.seeds if args.seeds is not None else [args.seed]
         with tqdm(
-            total=args.steps,
+            total=args.steps * len(seeds),
             unit="step",
             desc=f"expert {args.env}",
             dynamic_ncols=True,
@@ -807,17 +709,16 @@ def _one_expert(args: argparse.Namespace) -> None:
             path = train_expert(
                 args.env,
                 args.steps,
+                seeds,
                 args.root,
-                args.seed,
                 eval_interval=args.eval_interval,
                 checkpoint_interval=args.checkpoint_interval,
                 on_steps=bar.update,
                 algo=args.algo,
                 threads=args.threads,
                 device=args.device,
+                time_limit_s=None if args.minutes is None else 60 * args.minutes,
             )
-    import torch
-
     meta = torch.load(path, weights_only=True)["metadata"]
     print(
         f"expert: {path}: best evaluation {meta['best_eval_return']:.1f} at step "

@@ -178,7 +178,7 @@ def carried_tasks(
     for manifest in carry.listing(store):
         if all(r in by_id for r in manifest["members"]):
             members = [by_id.pop(r) for r in manifest["members"]]
-            tasks.append(members if manifest["kind"] == "batch" else members[0])
+            tasks.append(members if len(members) > 1 else members[0])
     return tasks, [p for p in missing if p.run_id in by_id]
 
 
@@ -415,7 +415,7 @@ def print_plan(
         if members <= asked:
             print(
                 f"  {where}; it resumes from there"
-                + (" as the batch it was" if manifest["kind"] == "batch" else "")
+                + (" as the batch it was" if len(members) > 1 else "")
             )
         else:
             print(
@@ -464,7 +464,7 @@ def run_grid(
     on CPUs; ``cuda`` is refused there.
 
     ``batch``: runs that differ only in seed train together, up to this many per process
-    (``baselines.batched``); on a GPU they do by default, as many as fit. ``env_workers``:
+    (``baselines.offpolicy``); on a GPU they do by default, as many as fit. ``env_workers``:
     processes stepping each batch's envs (default: the cores left over by the workers).
 
     ``deadline`` (a ``time.time()``; default: the one ``time_limit`` set): finished runs are
@@ -880,7 +880,7 @@ def _run_on_ray(
     carried_batches = [
         m["name"]
         for m in carry.listing(store)
-        if m["kind"] == "batch" and asked & set(m["members"])
+        if len(m["members"]) > 1 and asked & set(m["members"])
     ]
     if carried_batches:
         print(

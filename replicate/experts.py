@@ -1,34 +1,41 @@
 """Experts: the harness trains its own, with its own SAC, and rolls them out for demonstrations.
 
 The paper took its MuJoCo demonstrations from "the best trained SAC or TD3 agent" and never
-released them. Here an expert is a SAC run that checkpoints into a work directory
-(``experts/<env>/`` by default, not committed: it holds the replay buffer) and resumes from
-there when started again, so an expert can be trained in several parts. The policy
-with the best evaluation so far is kept; exporting writes it with its provenance into the
-package (``replicate/data/experts``), small enough to commit.
+released them. Here an expert is an ordinary run of SAC or twin-Q SAC with the
+``keep_best_policy`` setting, in a run store of its own (``experts/<env>/`` by default, not
+committed): it checkpoints, resumes and trains in seed batches as every run does, and keeps
+the policy with the best evaluation so far beside its curve. Exporting writes the best such
+policy, with its provenance, into the package (``replicate/data/experts``), small enough to
+commit.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from baselines.common.checkpoint import CheckpointDeviceError, save_checkpoint
-from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
+from baselines.common.checkpoint import TimeLimitReached, save_checkpoint
+from baselines.common.device import resolve_device
 from baselines.common.networks import TanhGaussianPolicy
-from baselines.registry import get_algorithm
 from envs import env_spec, make_env
 from replicate import provenance
-from replicate.devices import check_device
 from replicate.errors import HarnessError
+from replicate.runner import (
+    BEST_POLICY_FILE,
+    SITTINGS_FILE,
+    PreparedRun,
+    execute,
+    execute_batch,
+    prepare,
+)
+from replicate.spec import RunSpec
 
 EXPERT_DATA_DIR = "data/experts"
 EXPERT_ALGOS = ("sac", "sac-twin-q")
@@ -124,11 +131,28 @@ def _checked_request(env_id: str, steps: int, algo: str | None) -> str:
     return algo
 
 
+def expert_runs(
+    env_id: str,
+    steps: int,
+    seeds: list[int],
+    eval_interval: int,
+    eval_episodes: int,
+    algo: str,
+    threads: int,
+) -> list[PreparedRun]:
+    """The expert runs of ``env_id``: one ordinary run per seed that keeps its best policy."""
+    hyperparameters = {"keep_best_policy": True, "torch_threads": threads}
+    return [
+        prepare(RunSpec(algo, env_id, seed, steps, eval_interval, eval_episodes, hyperparameters))
+        for seed in seeds
+    ]
+
+
 def train_expert(
     env_id: str,
     steps: int,
+    seeds: list[int] | tuple[int, ...] = (0,),
     root: Path = Path("experts"),
-    seed: int = 0,
     eval_interval: int = 10_000,
     eval_episodes: int = 5,
     checkpoint_interval: int = 10_000,
@@ -136,276 +160,137 @@ def train_expert(
     algo: str | None = None,
     threads: int = 1,
     device: str = "auto",
-) -> Path:
-    """Train (or resume) the SAC expert of ``env_id`` up to ``steps``; export it; return its
-    path."""
-    algo = _checked_request(env_id, steps, algo)
-    work = work_dir_for(env_id, root)
-    work.mkdir(parents=True, exist_ok=True)
-    progress_file = work / "progress.json"
-    previous = json.loads(progress_file.read_text()) if progress_file.is_file() else {}
-    if previous.get("total_steps", steps) != steps:
-        # the budget is part of the run (beta-free SAC has no schedule, but keep it honest)
-        raise HarnessError(
-            f"{work} holds an expert run with budget {previous['total_steps']}, not {steps}",
-            f"pass --steps {previous['total_steps']} or remove {work}",
-        )
-    if previous.get("algo", algo) != algo:
-        raise HarnessError(
-            f"{work} holds an expert run of {previous['algo']}, not {algo}",
-            f"pass --algo {previous['algo']} or remove {work}",
-        )
-    earlier_wall = float(previous.get("wall_time_s_before_this_sitting", 0.0))
-    earlier_wall += float(previous.get("wall_time_s_this_sitting", 0.0))
-    started = time.time()
-    curve: list[EvalPoint] = []
-
-    def on_eval(point: EvalPoint) -> None:
-        curve.append(point)
-        best = max(curve, key=lambda p: p.mean_return)
-        progress_file.write_text(
-            json.dumps(
-                {
-                    "env_id": env_id,
-                    "algo": algo,
-                    "seed": seed,
-                    "total_steps": steps,
-                    "torch_threads": threads,
-                    "device": describe_device(resolved_device),
-                    "steps_done": point.step,
-                    "best_step": best.step,
-                    "best_mean_return": best.mean_return,
-                    "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
-                    "wall_time_s_before_this_sitting": earlier_wall,
-                    "wall_time_s_this_sitting": time.time() - started,
-                },
-                indent=1,
-            )
-        )
-
-    if threads < 1:
-        raise HarnessError(f"thread count must be positive, got {threads}", "pass --threads 1")
-    algorithm = get_algorithm(algo)
-    check_device(device)
-    resolved_device = resolve_device(device, algorithm.gpu)
-    saved_on = device_kind(previous.get("device", "cpu"))
-    try:
-        resolved_device = resume_device(
-            resolved_device,
-            saved_on if (work / "checkpoint.pt").is_file() else None,
-            follow=device == "auto",
-            what=f"the {env_id} expert ({work})",
-        )
-    except CheckpointDeviceError as exc:
-        raise HarnessError(
-            str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
-        ) from None
-    # one expert alone on a machine may use every core for its matrix products
-    config = algorithm.make_config({"torch_threads": threads})
-    ctx = TrainContext(
-        env_id=env_id,
-        seed=seed,
-        total_steps=steps,
-        eval_interval=eval_interval,
-        eval_episodes=eval_episodes,
-        on_eval=on_eval,
-        on_steps=on_steps,
-        checkpoint_path=work / "checkpoint.pt",
-        checkpoint_interval=checkpoint_interval,
-        best_policy_path=work / "best_policy.pt",
-        device=resolved_device,
-    )
-    try:
-        algorithm.train(ctx, config)
-    except CheckpointDeviceError as exc:
-        raise HarnessError(
-            str(exc), f"pass --device {saved_on} (or auto), or remove {work}"
-        ) from None
-    except torch.OutOfMemoryError:
-        raise HarnessError(
-            f"the {env_id} expert ran out of GPU memory; its last checkpoint is kept",
-            "run the same command again, or with --device cpu",
-        ) from None
-    (work / "checkpoint.pt").unlink(missing_ok=True)  # finished: the buffer is not needed
-    return export_expert(env_id, root)
-
-
-class _TimeUp(Exception):
-    """Raised from the progress callback when a time-limited expert batch is out of time."""
-
-
-def train_expert_batch(
-    env_id: str,
-    steps: int,
-    seeds: list[int],
-    root: Path = Path("experts"),
-    eval_interval: int = 10_000,
-    eval_episodes: int = 5,
-    on_steps: Callable[[int], None] = lambda n: None,
-    algo: str | None = None,
-    device: str = "auto",
     env_workers: int | None = None,
     time_limit_s: float | None = None,
 ) -> Path:
-    """Train one expert run per seed as one seed batch, keep the member with the best
-    evaluation, export it and return the path.
-
-    For a GPU machine: several seeds cost little more time than one, and
-    the best of them is kept (as the paper kept "the best trained" agent). With
-    ``time_limit_s`` the batch stops at the first step after that many seconds; every
-    member's best policy so far is on disk at each evaluation, so stopping loses nothing
-    kept. A batch is not resumed: it writes ``<root>/<env>/batch/seed-<s>/`` afresh.
-    """
-    from baselines.batched import BatchContext
-    from baselines.registry import batched_trainer
-
+    """Train (or resume) one expert run per seed, several seeds as one seed batch, in the
+    run store ``<root>/<env>/``; export the best policy any of them evaluated; return the
+    exported file. With ``time_limit_s`` the training checkpoints and stops after that many
+    seconds (the same call goes on from there), and the best policy so far is exported."""
     algo = _checked_request(env_id, steps, algo)
-    if len(set(seeds)) != len(seeds) or len(seeds) < 2:
+    seeds = list(seeds)
+    if not seeds or len(set(seeds)) != len(seeds):
         raise HarnessError(
-            f"an expert batch needs two or more distinct seeds, got {seeds}",
-            "pass --seeds 1-8 (or --seed N for one run)",
+            f"expert seeds must be distinct, got {seeds}", "pass --seeds 1-8 or --seed N"
         )
-    work = work_dir_for(env_id, root)
-    if (work / "checkpoint.pt").is_file():
-        raise HarnessError(
-            f"{work} holds a one-run expert in training",
-            "finish or remove it, or pass another --root",
-        )
-    check_device(device)
-    resolved_device = resolve_device(device, True)
-    workers = (
-        env_workers if env_workers is not None else (0 if resolved_device == "cpu" else len(seeds))
-    )
-    started = time.time()
-    members_dir = work / "batch"
-    curves: dict[int, list[EvalPoint]] = {seed: [] for seed in seeds}
-
-    def progress(seed: int, point: EvalPoint) -> None:
-        curve = curves[seed]
-        curve.append(point)
-        best = max(curve, key=lambda p: p.mean_return)
-        (members_dir / f"seed-{seed}" / "progress.json").write_text(
-            json.dumps(
-                {
-                    "env_id": env_id,
-                    "algo": algo,
-                    "seed": seed,
-                    "total_steps": steps,
-                    "torch_threads": 1,
-                    "device": describe_device(resolved_device),
-                    "steps_done": point.step,
-                    "best_step": best.step,
-                    "best_mean_return": best.mean_return,
-                    "curve": [[p.step, round(p.mean_return, 3)] for p in curve],
-                    "batch_seeds": list(seeds),
-                    "time_limit_s": time_limit_s,
-                    "wall_time_s_before_this_sitting": 0.0,
-                    "wall_time_s_this_sitting": time.time() - started,
-                },
-                indent=1,
-            )
-        )
-
-    def count(n: int) -> None:
-        on_steps(n)
-        if time_limit_s is not None and time.time() - started > time_limit_s:
-            raise _TimeUp
-
-    contexts = []
-    for seed in seeds:
-        (members_dir / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
-        (members_dir / f"seed-{seed}" / "best_policy.pt").unlink(missing_ok=True)
-        contexts.append(
-            TrainContext(
-                env_id=env_id,
-                seed=seed,
-                total_steps=steps,
-                eval_interval=eval_interval,
-                eval_episodes=eval_episodes,
-                on_eval=lambda p, s=seed: progress(s, p),
-                best_policy_path=members_dir / f"seed-{seed}" / "best_policy.pt",
-                device=resolved_device,
-            )
-        )
-    algorithm = get_algorithm(algo)
-    config = algorithm.make_config({"torch_threads": 1})
-    bctx = BatchContext(contexts, device=resolved_device, env_workers=workers, on_steps=count)
+    if threads < 1:
+        raise HarnessError(f"thread count must be positive, got {threads}", "pass --threads 1")
+    store = work_dir_for(env_id, root)
+    runs = expert_runs(env_id, steps, seeds, eval_interval, eval_episodes, algo, threads)
+    deadline = None if time_limit_s is None else time.time() + time_limit_s
+    if env_workers is None:  # on a GPU the envs of a batch step in worker processes
+        env_workers = 0 if resolve_device(device, True) == "cpu" or len(runs) == 1 else len(runs)
     try:
-        batched_trainer(algo)(bctx, [config] * len(seeds))
-    except _TimeUp:
-        pass
-    except torch.OutOfMemoryError:
-        raise HarnessError(
-            f"the {env_id} expert batch ran out of GPU memory",
-            "pass fewer --seeds, or --device cpu",
-        ) from None
-    trained = [s for s in seeds if (members_dir / f"seed-{s}" / "best_policy.pt").is_file()]
-    if not trained:
-        raise HarnessError(
-            f"no member of the {env_id} expert batch finished an evaluation",
-            "give it more time (--minutes)",
-        )
-    chosen = max(trained, key=lambda s: max(p.mean_return for p in curves[s]))
-    chosen_dir = members_dir / f"seed-{chosen}"
-    summary = json.loads((chosen_dir / "progress.json").read_text())
-    summary["batch_best"] = {str(s): max(p.mean_return for p in curves[s]) for s in trained}
-    (work / "progress.json").write_text(json.dumps(summary, indent=1))
-    (work / "best_policy.pt").write_bytes((chosen_dir / "best_policy.pt").read_bytes())
-    return export_expert(env_id, root)
+        if len(runs) == 1:
+            execute(runs[0], store, on_steps, checkpoint_interval, device, deadline=deadline)
+        else:
+            outcome = execute_batch(
+                runs,
+                store,
+                on_steps,
+                checkpoint_interval,
+                device,
+                env_workers=env_workers,
+                deadline=deadline,
+            )
+            for run_id, reason in outcome.failed:
+                print(f"expert run {run_id} failed alone: {reason}")
+    except TimeLimitReached:
+        pass  # checkpointed where it stopped: the same command goes on from there
+    return export_expert(env_id, root, [p.run_id for p in runs], time_limit_s)
 
 
-def export_expert(env_id: str, root: Path = Path("experts")) -> Path:
-    """Write the best policy so far, with its provenance, to the package's expert file."""
-    work = work_dir_for(env_id, root)
-    best_file, progress_file = work / "best_policy.pt", work / "progress.json"
-    if not best_file.is_file() or not progress_file.is_file():
+@dataclass
+class _ExpertCandidate:
+    """An expert run, finished or in training, and the best policy it has kept."""
+
+    path: Path
+    spec: dict[str, Any]
+    best: dict[str, Any]
+
+    @property
+    def curve(self) -> list[list[float]]:
+        import pandas as pd
+
+        curve = pd.read_csv(self.path / "curve.csv")
+        return [[int(s), round(float(r), 3)] for s, r in zip(curve["step"], curve["return_mean"])]
+
+    @property
+    def sittings(self) -> list[dict[str, Any]]:
+        parts = self.path / SITTINGS_FILE
+        return json.loads(parts.read_text()) if parts.is_file() else []
+
+
+def _candidates(store: Path, run_ids: list[str] | None) -> list[_ExpertCandidate]:
+    """The expert runs in ``store`` (of ``run_ids`` where given) that have kept a policy."""
+    found = []
+    for path in sorted(store.glob("*")) if store.is_dir() else []:
+        run_id = path.name.removeprefix(".partial-")
+        if run_ids is not None and run_id not in run_ids:
+            continue
+        if (path / BEST_POLICY_FILE).is_file() and (path / "spec.json").is_file():
+            best = torch.load(path / BEST_POLICY_FILE, weights_only=True, map_location="cpu")
+            found.append(_ExpertCandidate(path, json.loads((path / "spec.json").read_text()), best))
+    return found
+
+
+def export_expert(
+    env_id: str,
+    root: Path = Path("experts"),
+    run_ids: list[str] | None = None,
+    time_limit_s: float | None = None,
+) -> Path:
+    """Write the best policy that the expert runs (``run_ids``, or every one in the expert
+    store) evaluated so far, with its provenance, to the package's expert file."""
+    store = work_dir_for(env_id, root)
+    candidates = _candidates(store, run_ids)
+    if not candidates:
         raise HarnessError(
-            f"no expert training found in {work}",
+            f"no expert training found in {store}",
             f"train one first: python -m replicate expert --env {env_id}",
         )
-    best = torch.load(best_file, weights_only=True, map_location="cpu")
-    progress = json.loads(progress_file.read_text())
-    algo = progress.get("algo", "sac")
-    config = get_algorithm(algo).make_config({"torch_threads": progress.get("torch_threads", 1)})
+    chosen = max(candidates, key=lambda c: c.best["mean_return"])
+    spec, best = chosen.spec, chosen.best
+    algo, hyperparameters = spec["algo"], spec["hyperparameters"]
+    seeds = sorted(c.spec["seed"] for c in candidates)
+    threads = hyperparameters.get("torch_threads", 1)
+    sittings = chosen.sittings
+    device = sittings[-1]["device"] if sittings else "cpu"
+    curve = chosen.curve
+    command = f"python -m replicate expert --env {env_id} --steps {spec['total_steps']}"
+    if len(seeds) > 1:
+        command += f" --seeds {','.join(map(str, seeds))}"
+    elif seeds != [0]:
+        command += f" --seed {seeds[0]}"
+    if time_limit_s:
+        command += f" --minutes {time_limit_s / 60:g}"
+    if algo != expert_algo_for(env_id):
+        command += f" --algo {algo}"
+    if threads != 1:
+        command += f" --threads {threads}"
+    # CPU training reproduces bit for bit; the command names the device it ran on
+    command += " --device " + ("cuda" if device.startswith("cuda") else "cpu")
     metadata = {
         "env_id": env_id,
         "algo": algo,
-        "seed": progress["seed"],
-        "hidden_sizes": list(config.hidden_sizes),
-        "hyperparameters": {
-            k: (list(v) if isinstance(v, tuple) else v)
-            for k, v in dataclasses.asdict(config).items()
-        },
-        "budget_steps": progress["total_steps"],
-        "steps_trained": progress["steps_done"],
-        # a batch keeps its best member; every member's best evaluation, by seed
-        **({"batch_best_eval_return": progress["batch_best"]} if "batch_best" in progress else {}),
+        "seed": spec["seed"],
+        "run_id": chosen.path.name.removeprefix(".partial-"),
+        "hidden_sizes": list(hyperparameters["hidden_sizes"]),
+        "hyperparameters": hyperparameters,
+        "budget_steps": spec["total_steps"],
+        "steps_trained": curve[-1][0],
         "best_step": int(best["step"]),
         "best_eval_return": float(best["mean_return"]),
-        "wall_time_s": round(
-            progress["wall_time_s_before_this_sitting"] + progress["wall_time_s_this_sitting"], 1
-        ),
-        "curve": progress["curve"],
-        "command": f"python -m replicate expert --env {env_id} --steps {progress['total_steps']}"
-        + (
-            f" --seeds {','.join(map(str, progress['batch_seeds']))}"
-            if "batch_seeds" in progress
-            else ""
-        )
-        + (f" --minutes {progress['time_limit_s'] / 60:g}" if progress.get("time_limit_s") else "")
-        + ("" if algo == expert_algo_for(env_id) else f" --algo {algo}")
-        + (
-            ""
-            if progress.get("torch_threads", 1) == 1
-            else f" --threads {progress['torch_threads']}"
-        ),
+        "wall_time_s": round(sum(s["wall_time_s"] for s in sittings), 1),
+        "curve": curve,
+        "command": command,
         "git_revision": provenance.git_revision(),
-        "device": progress.get("device", "cpu"),
+        "device": device,
     }
-    # CPU training reproduces bit for bit; the command names the device it ran on
-    metadata["command"] += " --device " + (
-        "cuda" if metadata["device"].startswith("cuda") else "cpu"
-    )
+    if len(candidates) > 1:  # a batch keeps its best member; every member's best, by seed
+        metadata["batch_best_eval_return"] = {
+            str(c.spec["seed"]): float(c.best["mean_return"]) for c in candidates
+        }
     # half precision halves the committed file; demonstrations are rolled out from these
     # rounded weights, so the files and the returns they record agree
     metadata["weights_dtype"] = "float16"

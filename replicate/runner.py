@@ -71,7 +71,7 @@ class PreparedRun:
 
 # Settings added after runs were committed: at these values they are left out of the
 # resolved spec, so every run trained before a setting existed keeps its address.
-ADDRESS_NEUTRAL_DEFAULTS: dict[str, Any] = {"random_start_steps": 0}
+ADDRESS_NEUTRAL_DEFAULTS: dict[str, Any] = {"random_start_steps": 0, "keep_best_policy": False}
 
 
 def prepare(spec: RunSpec) -> PreparedRun:
@@ -125,6 +125,7 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
 DEFAULT_CHECKPOINT_INTERVAL = 10_000  # env steps; taken at the next episode end
 CHECKPOINT_FILE = carry.CHECKPOINT_FILE
 SITTINGS_FILE = "sittings.json"  # the parts a run was trained in (the name is the format's)
+BEST_POLICY_FILE = "best_policy.pt"  # runs with keep_best_policy (experts)
 
 
 class RunLockedError(HarnessError):
@@ -173,6 +174,20 @@ def execute(
     final_dir = prepared.directory(store)
     if is_complete(final_dir):
         return load_run(final_dir)
+    if get_algorithm(prepared.spec.algo).batchable:
+        # a run of the SAC family is a seed batch of one: one path locks, resumes and lands it
+        outcome = execute_batch(
+            [prepared],
+            store,
+            on_steps,
+            checkpoint_interval,
+            device,
+            follow_checkpoint,
+            deadline=deadline,
+        )
+        if outcome.failed:
+            raise FloatingPointError(outcome.failed[0][1])
+        return load_run(final_dir)
     store.mkdir(parents=True, exist_ok=True)
     work_dir = partial_directory(prepared, store)
     lock_path = store / f".lock-{prepared.run_id}"
@@ -191,8 +206,6 @@ def execute(
             if not is_complete(final_dir):  # another process may have finished it
                 work_dir.mkdir(exist_ok=True)
                 if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
-                    if carry.should_unpack(store, prepared.run_id, work_dir / CHECKPOINT_FILE):
-                        carry.unpack_run(store, prepared.run_id)  # packed elsewhere
                     try:
                         _train_into(
                             prepared,
@@ -217,9 +230,8 @@ def execute(
                         ) from None
                     except RECURRING_ERRORS:
                         shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
-                        raise  # a carried checkpoint stays: the failure may be this machine's
+                        raise
                 (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
-                carry.discard(store, prepared.run_id)
                 if final_dir.exists():  # a stale incomplete directory of the same address
                     shutil.rmtree(final_dir)
                 os.replace(work_dir, final_dir)
@@ -335,6 +347,11 @@ class _RunRecorder:
                 "expert": prepared.demos.metadata.get("expert"),
             },
         }
+        algorithm = get_algorithm(spec.algo)
+        # the code path that trained it: the SAC family's one trainer, or the algorithm's own
+        payload["trainer"] = (
+            "baselines.offpolicy.run_off_policy" if algorithm.batchable else algorithm.module
+        )
         if self.batch is not None:
             # the batch's wall time is shared by its members: the rate is per member
             payload["batch"] = {**self.batch, "device": describe_device(self.device)}
@@ -345,6 +362,8 @@ def _context(
     prepared: PreparedRun, recorder: _RunRecorder, device: str, **fields: Any
 ) -> TrainContext:
     spec = prepared.spec
+    if getattr(prepared.config, "keep_best_policy", False):
+        fields["best_policy_path"] = recorder.run_dir / BEST_POLICY_FILE
     return TrainContext(
         env_id=spec.env_id,
         seed=spec.seed,
@@ -440,7 +459,7 @@ def execute_batch(
 ) -> BatchOutcome:
     """Train ``members`` (one algorithm with a batched trainer, one env and budget,
     different seeds) together in this process. Each member lands in the store as its own
-    run directory, at the address the one-run path gives it; its provenance names the batch.
+    run directory, at its own run address; its provenance names the batch.
     A member that diverges fails alone. The batch checkpoints as a whole into
     ``<store>/.<batch id>/`` and resumes from there when started again with the same
     members; past ``deadline`` it checkpoints and stops, as ``execute`` does."""
@@ -528,7 +547,7 @@ def execute_batch(
             for recorder in recorders:
                 recorder.on_resume(step)
 
-        from baselines.batched import BatchContext
+        from baselines.common.context import BatchContext
 
         bctx = BatchContext(
             contexts,
@@ -569,9 +588,11 @@ def execute_batch(
             ) from None
         except torch.OutOfMemoryError:
             raise HarnessError(
-                f"batch {ident} of {len(members)} runs ran out of GPU memory; "
+                f"batch {ident} of {len(members)} run(s) ran out of GPU memory; "
                 "its last checkpoint is kept",
-                "run the same command again with a smaller --batch",
+                "run the same command again with a smaller --batch"
+                if len(members) > 1
+                else "run the same command again with fewer --gpu-workers, or with --device cpu",
             ) from None
         except RECURRING_ERRORS:
             shutil.rmtree(batch_dir, ignore_errors=True)
@@ -601,14 +622,14 @@ def execute_batch(
                 shutil.rmtree(work, ignore_errors=True)
                 continue
             recorder.finish()
-            (work / CHECKPOINT_FILE).unlink(missing_ok=True)  # an earlier one-run attempt's
+            (work / CHECKPOINT_FILE).unlink(missing_ok=True)  # an earlier attempt's, if any
             final_dir = p.directory(store)
             if final_dir.exists():
                 shutil.rmtree(final_dir)
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
         shutil.rmtree(batch_dir, ignore_errors=True)
-        for name in [ident, *(run.path.name for run in runs)]:  # and landed members' one-runs
+        for name in [ident, *(run.path.name for run in runs)]:  # and any carried as runs
             carry.discard(store, name)
         return BatchOutcome(runs, failed)
     finally:

@@ -56,7 +56,7 @@ def batch_curves(
     """Train ``seeds`` of ``algo`` on MountainCar as one seed batch checkpointing into
     ``path`` every 100 steps; with ``stop_at``, stop as if killed at that call of the
     progress callback. Each member's evaluation points, by seed."""
-    from baselines.batched import BatchContext
+    from baselines.common.context import BatchContext
     from baselines.registry import batched_trainer
 
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)

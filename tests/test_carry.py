@@ -81,7 +81,7 @@ def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(
     assert _curves(third) == _curves(whole)  # the envs step alike here, after all
 
 
-def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
+def test_a_carried_single_run_resumes_on_the_uninterrupted_curve(tmp_path):
     spec = RunSpec("sac", HOPPER, 3, 700, 350, 1, dict(TINY))
     whole, first, second = tmp_path / "whole", tmp_path / "first", tmp_path / "second"
     execute(prepare(spec), whole, device="cpu", checkpoint_interval=150)
@@ -91,7 +91,8 @@ def test_a_carried_one_run_resumes_on_the_uninterrupted_curve(tmp_path):
         )
     assert main(["carry", "--store", str(first)]) == 0
     (manifest,) = carry.listing(first)
-    assert manifest["kind"] == "run" and 150 <= manifest["step"] < 600
+    # a single run of the SAC family is a seed batch of one
+    assert manifest["members"] == [prepare(spec).run_id] and 150 <= manifest["step"] < 600
     shutil.copytree(carry.carry_root(first), carry.carry_root(second))
     execute(prepare(spec), second, device="cpu", checkpoint_interval=150)
     assert _curves(second) == _curves(whole)
@@ -109,7 +110,7 @@ def test_a_carried_replay_that_does_not_rebuild_is_refused_and_kept(tmp_path, mo
             on_steps=_stop_after(400),
         )
     (packed,), _ = carry.pack_all(tmp_path)
-    shutil.rmtree(tmp_path / f".partial-{packed.name}")
+    shutil.rmtree(tmp_path / f".{packed.name}")
     manifest_path = carry.carry_root(tmp_path) / packed.name / carry.MANIFEST_FILE
     manifest = json.loads(manifest_path.read_text())
     manifest["replay_sha256"] = "0" * 64  # as if the envs stepped differently here
@@ -133,7 +134,7 @@ def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
             on_steps=_stop_after(400),
         )
     assert (
-        torch.load(next(tmp_path.glob(".partial-*/checkpoint.pt")), weights_only=False)["step"]
+        torch.load(next(tmp_path.glob(".batch-*/checkpoint.pt")), weights_only=False)["step"]
         > 150
     )
     assert main(["carry", "--store", str(tmp_path)]) == 0
@@ -229,7 +230,7 @@ def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives
             prepare(spec), second, device="cpu", checkpoint_interval=100, on_steps=_stop_after(300)
         )
     (packed,), _ = carry.pack_all(second)
-    local = first / f".partial-{packed.name}" / carry.CHECKPOINT_FILE
+    local = first / f".{packed.name}" / carry.CHECKPOINT_FILE
     assert torch.load(local, weights_only=False)["step"] < packed.step
     shutil.copytree(carry.carry_root(second), carry.carry_root(first))
     assert carry.should_unpack(first, packed.name, local)  # the carried one is further on

@@ -163,12 +163,12 @@ def test_train_writes_a_complete_run_directory_and_skips_it_the_second_time(tmp_
 
 
 def test_a_crashing_run_leaves_no_directory(tmp_path, capsys, monkeypatch):
-    import baselines.sac
+    import baselines.offpolicy
 
     def explode(*args, **kwargs):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(baselines.sac, "evaluate", explode)
+    monkeypatch.setattr(baselines.offpolicy, "evaluate_members", explode)
     store = tmp_path / "store"
     with pytest.raises(RuntimeError, match="boom"):
         main(["train", "--algo", "sac", "--env", MC, "--steps", "10", "--store", str(store)])

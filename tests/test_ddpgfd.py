@@ -176,12 +176,14 @@ def test_every_registered_trainer_runs_with_denormals_flushed():
         seen.append((torch.tensor([1e-39]) * 1.0).item())
 
     registry.register("probe-denormals", SACConfig)(probe)
-    registry.register_batched("probe-denormals")(probe)
     try:
         registry.get_algorithm("probe-denormals").train(None, None)
+    finally:
+        registry._REGISTRY.pop("probe-denormals")
+    registry.register("probe-denormals", SACConfig, batchable=True)(probe)
+    try:
         registry.batched_trainer("probe-denormals")(None, None)
     finally:
         registry._REGISTRY.pop("probe-denormals")
-        registry._BATCHED.pop("probe-denormals")
     assert seen == [0.0, 0.0]
     assert (torch.tensor([1e-39]) * 1.0).item() != 0.0  # and not after

@@ -11,14 +11,21 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.common.buffer import ReplayBuffer
 from baselines.common.checkpoint import save_checkpoint
 from baselines.common.device import DeviceUnavailableError, resolve_device, worker_devices
+from baselines.common.stacked import StackedReplay
 from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from replicate.cli import main
 from replicate.errors import HarnessError
-from replicate.runner import CHECKPOINT_FILE, CURVE_COLUMNS, execute, partial_directory, prepare
+from replicate.runner import (
+    CHECKPOINT_FILE,
+    CURVE_COLUMNS,
+    batch_id,
+    execute,
+    partial_directory,
+    prepare,
+)
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
@@ -96,47 +103,52 @@ def test_the_training_loop_refuses_a_checkpoint_of_the_other_device(tmp_path):
 
 
 def _agents(kind: str, device: str):
-    """Two agents of one seed: one replays its update as a CUDA graph, one runs it eagerly."""
+    """Two agents of seeds 0 and 1: one replays its update as a CUDA graph, one runs it
+    eagerly, on the same replay."""
     agent_cls, config = (
         (SACAgent, SACConfig()) if kind == "sac" else (TwinQSACAgent, TwinQSACConfig())
     )
 
     def make(graphs: bool):
-        return agent_cls(
-            11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device, cuda_graphs=graphs
-        )
+        agent = agent_cls([0, 1], "Hopper-v5", config, device=device, cuda_graphs=graphs)
+        agent.buffer = _filled_replay(device)
+        return agent
 
     return make(True), make(False)
 
 
-def _filled_buffer() -> ReplayBuffer:
+def _filled_replay(device: str) -> StackedReplay:
     rng = np.random.default_rng(0)
-    buffer = ReplayBuffer(11, 3, 2000)
+    replay = StackedReplay(2, 11, 3, 2000, torch.device(device))
     for _ in range(2000):
-        buffer.add(
-            rng.normal(size=11),
-            rng.uniform(-1, 1, 3),
-            rng.normal(),
-            rng.normal(size=11),
-            rng.random() < 0.05,
+        replay.add(
+            rng.normal(size=(2, 11)),
+            rng.uniform(-1, 1, (2, 3)),
+            rng.normal(size=2),
+            rng.normal(size=(2, 11)),
+            (rng.random(2) < 0.05).astype(np.float32),
         )
-    return buffer
+    return replay
 
 
 @cuda
 @pytest.mark.parametrize("kind", ["sac", "sac-twin-q"])
 def test_graphed_updates_follow_the_eager_ones(kind):
+    """The graphed step draws its indices and noise on the device, the eager one too when
+    given the same device stream: both start from one seed of it."""
     graphed, eager = _agents(kind, "cuda")
-    buffer = _filled_buffer()
-    rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(1)
     for _ in range(12):  # warm-up, capture, then replays
-        got = {k: float(v) for k, v in graphed.update(buffer.sample(256, rng_a)).items()}
-        want = {k: float(v) for k, v in eager.update(buffer.sample(256, rng_b)).items()}
+        torch.cuda.manual_seed(len(graphed.buffer.data))
+        graphed._size.fill_(graphed.buffer.size)
+        got = graphed._update_graph(size=graphed._size)
+        torch.cuda.manual_seed(len(eager.buffer.data))
+        eager._size.fill_(eager.buffer.size)
+        want = eager._update_graph(size=eager._size)
         for name in want:
-            assert got[name] == pytest.approx(want[name], rel=1e-4, abs=1e-5), name
+            assert torch.allclose(got[name], want[name], rtol=1e-4, atol=1e-5), name
     for a, b in zip(graphed.policy.parameters(), eager.policy.parameters(), strict=True):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)
-    assert graphed.gradient_step.graph is not None and eager.gradient_step.graph is None
+    assert graphed._update_graph.graph is not None and eager._update_graph.graph is None
 
 
 @cuda
@@ -167,35 +179,30 @@ def test_grid_workers_use_one_device_unless_the_gpu_ones_are_limited(monkeypatch
 
 
 def _interrupted_run(store, checkpoint_device: str):
-    """A run whose hidden directory holds a checkpoint made on ``checkpoint_device``."""
+    """A run (a seed batch of one) whose checkpoint was made on ``checkpoint_device``; the
+    checkpoint's path and the run's hidden directory."""
     prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
-    work = partial_directory(prepared, store)
-    save_checkpoint(work / CHECKPOINT_FILE, {"step": 200, "device": checkpoint_device})
-    (work / "sittings.json").write_text(
-        json.dumps(
-            [
-                {
-                    "started_utc": "2026-11-26T00:00:00+00:00",
-                    "resumed_from_step": 0,
-                    "wall_time_s": 1.0,
-                    "git_revision": "x",
-                    "device": checkpoint_device,
-                }
-            ]
-        )
+    batch_dir = store / f".{batch_id([prepared])}"
+    save_checkpoint(batch_dir / CHECKPOINT_FILE, {"step": 200, "device": checkpoint_device})
+    (batch_dir / "sittings.json").write_text(
+        json.dumps([{"wall_time_s": 1.0, "device": checkpoint_device}])
     )
+    work = partial_directory(prepared, store)
+    work.mkdir(parents=True)
     (work / "curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n0,1.0,0,1.0,nan,,nan,0.5\n")
-    return prepared, work
+    return prepared, batch_dir / CHECKPOINT_FILE, work
 
 
 def test_a_resume_follows_its_checkpoint_under_auto_and_is_refused_otherwise(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    prepared, work = _interrupted_run(tmp_path, "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)")
+    prepared, checkpoint, work = _interrupted_run(
+        tmp_path, "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"
+    )
     # no GPU here: the CUDA checkpoint cannot be followed, whatever was asked
     for device in ("auto", "cpu"):
         with pytest.raises(HarnessError, match="made on cuda"):
             execute(prepared, tmp_path, device=device)
-        assert (work / CHECKPOINT_FILE).is_file()  # the run's progress is not thrown away
+        assert checkpoint.is_file()  # the run's progress is not thrown away
         assert "0,1.0,0,1.0" in (work / "curve.csv").read_text()  # nor its curve
 
 
@@ -203,19 +210,21 @@ def test_a_cpu_checkpoint_is_resumed_on_cpu_by_a_gpu_worker_under_auto(tmp_path,
     import baselines.registry
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
-    prepared, _ = _interrupted_run(tmp_path, "cpu")
+    prepared, _, _ = _interrupted_run(tmp_path, "cpu")
     seen = {}
 
     class Stop(Exception):
         pass
 
-    def record_device(ctx, config):
-        seen["device"] = ctx.device
+    def record_device(bctx, configs):
+        seen["device"] = bctx.device
         raise Stop  # nothing is trained: only the choice of device is under test
 
     algorithm = baselines.registry.get_algorithm("sac")
     monkeypatch.setitem(
-        baselines.registry._REGISTRY, "sac", dataclasses.replace(algorithm, train=record_device)
+        baselines.registry._REGISTRY,
+        "sac",
+        dataclasses.replace(algorithm, train_batch=record_device),
     )
     with pytest.raises(Stop):
         execute(prepared, tmp_path, device="cuda", follow_checkpoint=True)
@@ -226,14 +235,13 @@ def test_an_expert_checkpoint_from_a_gpu_is_refused_here_and_kept(tmp_path, monk
     from replicate import experts
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    work = experts.work_dir_for("Hopper-v5", tmp_path)
-    work.mkdir(parents=True)
-    (work / "progress.json").write_text(
-        json.dumps(
-            {"total_steps": 200, "algo": "sac", "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}
-        )
+    (run,) = experts.expert_runs("Hopper-v5", 200, [0], 10_000, 5, "sac", 1)
+    store = experts.work_dir_for("Hopper-v5", tmp_path)
+    checkpoint = store / f".{batch_id([run])}" / CHECKPOINT_FILE
+    save_checkpoint(checkpoint, {"step": 100, "device": "cuda"})
+    (checkpoint.parent / "sittings.json").write_text(
+        json.dumps([{"wall_time_s": 1.0, "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}])
     )
-    save_checkpoint(work / "checkpoint.pt", {"step": 100, "device": "cuda"})
     with pytest.raises(HarnessError, match="made on cuda"):
         experts.train_expert("Hopper-v5", steps=200, root=tmp_path, algo="sac")
-    assert (work / "checkpoint.pt").is_file()
+    assert checkpoint.is_file()

@@ -31,20 +31,31 @@ def test_discriminator_guides_at_and_below_threshold_only():
     assert not functional_discriminator(0.0, threshold=0.0)
 
 
-def test_zero_threshold_does_not_guide_a_state_equal_to_a_demonstration_state():
-    from baselines.drl_eg import Guidance
+class _StillAgent:
+    """An agent whose policy always proposes zeros: what the explorer chose is visible."""
 
+    def __init__(self, act_dim: int):
+        self.act_dim = act_dim
+
+    def act(self, obs, need=None):
+        return np.zeros((len(obs), self.act_dim), dtype=np.float32)
+
+
+def _guide(config, demos, state, low, high):
+    """G(s) for one state from DRL-EG's explorer, or None where D(s) = 0."""
+    from baselines.drl_eg import GuidedExplorer
+
+    explorer = GuidedExplorer(_StillAgent(len(low)), [config], demos, low, high, [0])
+    actions, guided = explorer.choose(np.asarray(state, dtype=np.float32)[None])
+    return actions[0] if guided[0] else None
+
+
+def test_zero_threshold_does_not_guide_a_state_equal_to_a_demonstration_state():
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     wall = demos.observations[0].copy()
-    config = DRLEGConfig(guide_threshold=0.0)
-    guidance = Guidance(config, demos, np.array([-1.0]), np.array([1.0]), seed=0)
-    assert guidance.guide(wall) is None
-    assert (
-        Guidance(
-            DRLEGConfig(guide_threshold=1e-9), demos, np.array([-1.0]), np.array([1.0]), seed=0
-        ).guide(wall)
-        is not None
-    )
+    low, high = np.array([-1.0]), np.array([1.0])
+    assert _guide(DRLEGConfig(guide_threshold=0.0), demos, wall, low, high) is None
+    assert _guide(DRLEGConfig(guide_threshold=1e-9), demos, wall, low, high) is not None
 
 
 def test_guider_returns_nearest_action_plus_gaussian_noise_clipped():
@@ -104,7 +115,7 @@ def test_zero_threshold_never_guides_so_drl_eg_equals_sac():
 
 
 def test_large_threshold_guides_every_step_and_stores_the_executed_action():
-    curve, buffer = train_tiny(
+    curve, replay = train_tiny(
         "drl-eg",
         seed=0,
         steps=400,
@@ -112,6 +123,7 @@ def test_large_threshold_guides_every_step_and_stores_the_executed_action():
         guide_noise_std=0.0,
         learning_starts=10_000,
     )
+    buffer = replay.member(0)
     assert curve[1].guided_fraction == 1.0 and curve[1].gate_open
     # with sigma = 0 the executed (and stored) action is the MountainCar rule's +-0.5
     stored = buffer.actions[:400, 0]
@@ -189,7 +201,7 @@ def test_unknown_discriminator_is_refused():
 
 
 def test_kd_tree_guidance_finds_the_brute_force_nearest_demo():
-    from baselines.drl_eg import Guidance
+    from baselines.drl_eg import GuidedExplorer
     from replicate.demos import Demonstrations
 
     rng = np.random.default_rng(0)
@@ -197,26 +209,22 @@ def test_kd_tree_guidance_finds_the_brute_force_nearest_demo():
     demos = Demonstrations(
         states, rng.uniform(-1, 1, (5000, 3)).astype(np.float32), {"expert_return_mean": 1.0}
     )
-    guidance = Guidance(
-        DRLEGConfig(guide_threshold=1e6, guide_noise_std=0.0),
-        demos,
-        -np.ones(3),
-        np.ones(3),
-        seed=0,
-    )
+    config = DRLEGConfig(guide_threshold=1e6, guide_noise_std=0.0)
+    explorer = GuidedExplorer(_StillAgent(3), [config], demos, -np.ones(3), np.ones(3), [0])
     for query in rng.normal(size=(200, 11)):
-        distance, index = nearest_demo(guidance.states, query)
-        tree_distance, tree_index = guidance.tree.query(query)
+        distance, index = nearest_demo(explorer.states, query)
+        tree_distance, tree_index = explorer.tree.query(query)
         assert tree_index == index and tree_distance == pytest.approx(distance)
-        assert np.allclose(guidance.guide(query), demos.actions[index])
+        actions, guided = explorer.choose(query[None].astype(np.float32))
+        assert guided[0] and np.allclose(actions[0], demos.actions[index])
 
 
 def test_guidance_on_twin_q_sac_is_off_at_zero_and_guides_at_a_large_threshold():
     sac_curve, _ = train_tiny("sac-twin-q", seed=5, steps=400)
     off_curve, _ = train_tiny("drl-eg-twin-q", seed=5, steps=400, guide_threshold=0.0)
     assert [p.returns for p in off_curve] == [p.returns for p in sac_curve]
-    guided, buffer = train_tiny(
+    guided, replay = train_tiny(
         "drl-eg-twin-q", seed=5, steps=400, guide_threshold=1e6, guide_noise_std=0.0
     )
     assert guided[1].guided_fraction == 1.0
-    assert set(np.round(buffer.actions[:400, 0], 6)) <= {-0.5, 0.5}
+    assert set(np.round(replay.member(0).actions[:400, 0], 6)) <= {-0.5, 0.5}

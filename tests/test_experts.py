@@ -1,5 +1,3 @@
-import json
-
 import numpy as np
 import pytest
 import torch
@@ -7,6 +5,7 @@ import torch
 from replicate import experts
 from replicate.demos import load_demos, make_demos, save_demos
 from replicate.errors import DemoError, HarnessError
+from replicate.store import completed_runs
 
 ENV = "Hopper-v5"
 
@@ -29,12 +28,15 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
     meta = policy.metadata
     assert meta["steps_trained"] == 300 and meta["budget_steps"] == 300
     assert meta["best_eval_return"] == pytest.approx(max(r for _, r in meta["curve"]), abs=1e-3)
-    assert not (root / "Hopper-v5" / "checkpoint.pt").exists()  # finished runs drop the buffer
+    # an expert is an ordinary run of its store, with its best policy beside its curve
+    (run,) = completed_runs(root / ENV)
+    assert run.path.name == meta["run_id"] and run.spec["hyperparameters"]["keep_best_policy"]
+    assert not list((root / ENV).rglob("checkpoint.pt"))  # finished runs drop the buffer
     # the committed file holds half-precision weights; the policy acts as those weights do
     saved = torch.load(path, weights_only=True)
     assert meta["weights_dtype"] == "float16"
     assert all(t.dtype == torch.float16 for t in saved["policy"].values() if t.is_floating_point())
-    best = torch.load(root / "Hopper-v5" / "best_policy.pt", weights_only=True)["policy"]
+    best = torch.load(run.path / "best_policy.pt", weights_only=True)["policy"]
     assert all(
         torch.equal(p.data, best[name].half().float())
         for name, p in policy.policy.state_dict().items()
@@ -49,10 +51,9 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
     loaded = load_demos(save_demos(expert_dir / "demos.npz", demos), ENV)
     assert loaded.sha256 == demos.sha256 and loaded.has_transitions
 
-    with pytest.raises(HarnessError, match="budget 300"):
-        experts.train_expert(ENV, steps=600, root=root)
-    progress = json.loads((root / "Hopper-v5" / "progress.json").read_text())
-    assert progress["steps_done"] == 300
+    # the same request again finds its run in the store and trains nothing
+    again = experts.train_expert(ENV, steps=300, root=root, eval_interval=100)
+    assert experts.ExpertPolicy(ENV, again).metadata["wall_time_s"] == meta["wall_time_s"]
 
 
 def test_sparse_task_takes_the_dense_twins_expert(expert_dir):
@@ -77,15 +78,13 @@ def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):
     assert policy.metadata["device"] == "cpu"
     assert "initial_alpha" in policy.metadata["hyperparameters"]
     assert np.all(np.isfinite(policy(np.zeros(policy.policy.trunk[0].in_features))))
-    with pytest.raises(HarnessError, match="expert run of sac-twin-q"):
-        experts.train_expert(env_id, steps=200, root=root, algo="sac")
     with pytest.raises(HarnessError, match="not ppo"):
         experts.train_expert(env_id, steps=200, root=root, algo="ppo")
 
 
 def test_a_seed_batch_exports_its_best_member(expert_dir):
     root = expert_dir / "work"
-    path = experts.train_expert_batch(
+    path = experts.train_expert(
         ENV, steps=300, seeds=[1, 2], root=root, eval_interval=100, device="cpu"
     )
     meta = experts.ExpertPolicy(ENV, path).metadata
@@ -94,32 +93,33 @@ def test_a_seed_batch_exports_its_best_member(expert_dir):
     assert meta["seed"] == int(max(best, key=best.get))
     assert meta["best_eval_return"] == pytest.approx(max(best.values()))
     assert meta["steps_trained"] == 300 and "--seeds 1,2" in meta["command"]
-    member = torch.load(
-        root / ENV / "batch" / f"seed-{meta['seed']}" / "best_policy.pt", weights_only=True
-    )
+    member = torch.load(root / ENV / meta["run_id"] / "best_policy.pt", weights_only=True)
     exported = torch.load(path, weights_only=True)["policy"]
     assert all(
         torch.equal(exported[name], t.half())
         for name, t in member["policy"].items()
         if t.is_floating_point()
     )
-    for seed in (1, 2):  # every member kept its own curve and best policy
-        progress = json.loads((root / ENV / "batch" / f"seed-{seed}" / "progress.json").read_text())
-        assert [step for step, _ in progress["curve"]] == [0, 100, 200, 300]
-        assert progress["best_mean_return"] == pytest.approx(best[str(seed)])
+    runs = completed_runs(root / ENV)  # every member kept its own curve and best policy
+    assert sorted(run.spec["seed"] for run in runs) == [1, 2]
+    for run in runs:
+        assert run.curve["step"].tolist() == [0, 100, 200, 300]
+        assert run.curve["return_mean"].max() == pytest.approx(best[str(run.spec["seed"])], rel=1e-5)
+        assert run.provenance["batch"]["size"] == 2
 
 
-def test_a_time_limited_seed_batch_stops_and_keeps_what_it_evaluated(expert_dir):
-    path = experts.train_expert_batch(
-        ENV,
-        steps=10_000,
-        seeds=[1, 2],
-        root=expert_dir / "w",
-        eval_interval=100,
-        device="cpu",
-        time_limit_s=0,
+def test_a_time_limited_expert_stops_exports_what_it_evaluated_and_resumes(expert_dir):
+    root = expert_dir / "w"
+    path = experts.train_expert(
+        ENV, steps=300, seeds=[1, 2], root=root, eval_interval=100, device="cpu", time_limit_s=0
     )
     meta = experts.ExpertPolicy(ENV, path).metadata
     assert meta["steps_trained"] == 0 and meta["best_step"] == 0  # stopped at its first step
-    with pytest.raises(HarnessError, match="two or more distinct seeds"):
-        experts.train_expert_batch(ENV, steps=100, seeds=[1, 1], root=expert_dir / "w")
+    assert "--minutes 0" not in meta["command"]
+    assert not completed_runs(root / ENV)
+    # the same command without the limit goes on from the checkpoint
+    path = experts.train_expert(ENV, steps=300, seeds=[1, 2], root=root, eval_interval=100)
+    assert experts.ExpertPolicy(ENV, path).metadata["steps_trained"] == 300
+    assert len(completed_runs(root / ENV)) == 2
+    with pytest.raises(HarnessError, match="must be distinct"):
+        experts.train_expert(ENV, steps=100, seeds=[1, 1], root=root)

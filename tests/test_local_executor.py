@@ -83,9 +83,9 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
         stderr=subprocess.DEVNULL,
     )
     deadline = time.time() + 120
-    while time.time() < deadline and not list(tmp_path.glob(".partial-*/checkpoint.pt")):
+    while time.time() < deadline and not list(tmp_path.glob(".*/checkpoint.pt")):
         time.sleep(0.2)
-    assert list(tmp_path.glob(".partial-*/checkpoint.pt")), "training never checkpointed"
+    assert list(tmp_path.glob(".*/checkpoint.pt")), "training never checkpointed"
     descendants = _children(main.pid)
     descendants += [grandchild for child in descendants for grandchild in _children(child)]
     main.send_signal(signal.SIGKILL)
@@ -100,7 +100,7 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
     for pid in leftovers:
         os.kill(pid, signal.SIGKILL)
     assert not leftovers, f"processes outlived the killed figure process: {names}"
-    assert list(tmp_path.glob(".partial-*/checkpoint.pt"))  # resumable, not discarded
+    assert list(tmp_path.glob(".*/checkpoint.pt"))  # resumable, not discarded
 
 
 def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):

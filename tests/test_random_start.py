@@ -54,7 +54,8 @@ def test_a_random_start_changes_the_address_and_is_recorded():
 
 
 def test_one_run_takes_its_seeds_uniform_actions_first():
-    _, buffer = train_tiny("sac", seed=3, steps=300, random_start_steps=150)
+    _, replay = train_tiny("sac", seed=3, steps=300, random_start_steps=150)
+    buffer = replay.member(0)
     low, high = np.array([-1.0]), np.array([1.0])
     expected = np.stack([random_start_action(3, step, low, high) for step in range(1, 151)])
     np.testing.assert_array_equal(buffer.actions[:150], expected)
@@ -64,10 +65,10 @@ def test_one_run_takes_its_seeds_uniform_actions_first():
     )
 
 
-def test_a_seed_batch_member_draws_its_one_run_random_start(tmp_path, monkeypatch):
-    """Each member's first actions are the draws its one-run would take (the same function
-    of its own seed and the step), and the policy acts from the step after."""
-    import baselines.batched as batched
+def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch):
+    """Each member's first actions are the draws its run alone would take (the same
+    function of its own seed and the step), and the policy acts from the step after."""
+    import baselines.offpolicy as offpolicy
     from baselines.registry import get_algorithm
 
     drawn = []
@@ -76,7 +77,7 @@ def test_a_seed_batch_member_draws_its_one_run_random_start(tmp_path, monkeypatc
         drawn.append((seed, step))
         return random_start_action(seed, step, low, high)
 
-    monkeypatch.setattr(batched, "random_start_action", recording)
+    monkeypatch.setattr(offpolicy, "random_start_action", recording)
     config = get_algorithm("sac").make_config(dict(TINY, random_start_steps=150))
     batch_curves("sac", config, tmp_path / "batch", seeds=(0, 1), steps=400)
     assert drawn == [(seed, step) for step in range(1, 151) for seed in (0, 1)]

@@ -92,6 +92,10 @@ def test_killed_run_resumes_onto_the_uninterrupted_curve(tmp_path, algo, env_id,
     assert curve_signature(resumed) == curve_signature(reference)
     if reference_buffer is None:  # on-policy: nothing kept between rollouts
         return
-    n = len(reference_buffer)
+    if hasattr(reference_buffer, "member"):  # the off-policy trainer's stacked replay
+        reference_buffer, resumed_buffer = reference_buffer.member(0), resumed_buffer.member(0)
+        n = len(reference_buffer.observations)
+    else:
+        n = len(reference_buffer)
     assert np.array_equal(resumed_buffer.observations[:n], reference_buffer.observations[:n])
     assert np.array_equal(resumed_buffer.actions[:n], reference_buffer.actions[:n])

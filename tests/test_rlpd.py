@@ -4,10 +4,15 @@ import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch
-from baselines.rlpd import LayerNormCriticEnsemble, RLPDAgent, RLPDConfig, SymmetricReplay
+from baselines.common.stacked import StackedNormMLP, StackedSymmetricReplay, critic_ensembles
+from baselines.ibrl import preloaded_buffer
+from baselines.rlpd import LayerNormCriticEnsemble, RLPDAgent, RLPDConfig
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from tests.helpers import MOUNTAINCAR, curve_signature, train_tiny
 from tests.test_resume import Killed, run
+
+OBS, ACT = 2, 1  # MountainCar's
+CPU = torch.device("cpu")
 
 
 def marked_demos(n: int = 30) -> Demonstrations:
@@ -24,47 +29,74 @@ def marked_demos(n: int = 30) -> Demonstrations:
     )
 
 
+def demo_buffer(demos: Demonstrations | None = None):
+    """The demonstrations as RLPD's trainer hands them to the agent."""
+    return preloaded_buffer(demos or marked_demos(), OBS, ACT, online_capacity=0)
+
+
+def rlpd_agent(seeds=(0,), **settings) -> RLPDAgent:
+    config = RLPDConfig(hidden_sizes=(8, 8), **settings)
+    return RLPDAgent(list(seeds), MOUNTAINCAR, config, demo_buffer(), cuda_graphs=False)
+
+
 def test_every_sample_is_exactly_half_demonstrations():
-    replay = SymmetricReplay(marked_demos(), obs_dim=2, act_dim=1, capacity=50)
-    for t in range(7):
-        replay.add(np.full(2, float(t)), np.zeros(1), 0.0, np.full(2, t + 1.0), False)
-    rng = np.random.default_rng(0)
+    members = 2
+    replay = StackedSymmetricReplay(demo_buffer(), members, OBS, ACT, capacity=50, device=CPU)
+    for t in range(7):  # member k's online states are 50 k + t
+        obs = np.array([[50.0 * k + t] * OBS for k in range(members)], np.float32)
+        replay.add(obs, np.zeros((members, ACT)), np.zeros(members), obs + 1, np.zeros(members))
+    rngs = [np.random.default_rng(seed) for seed in range(members)]
     for batch_size in (2, 16, 64):
-        batch = replay.sample(batch_size, rng)
+        batch = replay.sample(batch_size, rngs)
         half = batch_size // 2
-        assert len(batch.rewards) == batch_size
-        assert batch.rewards[:half].tolist() == [1.0] * half  # demonstrations first
-        assert batch.rewards[half:].tolist() == [0.0] * half
-        assert (batch.observations[:half] >= 100).all() and (batch.observations[half:] < 7).all()
+        assert batch.rewards.shape == (members, batch_size)
+        for k in range(members):
+            assert batch.rewards[k, :half].tolist() == [1.0] * half  # demonstrations first
+            assert batch.rewards[k, half:].tolist() == [0.0] * (batch_size - half)
+            assert (batch.observations[k, :half] >= 100).all()
+            online = batch.observations[k, half:]  # each member's own online rows
+            assert ((online >= 50 * k) & (online < 50 * k + 7)).all()
+    assert replay.size == 7  # the demonstrations are not in the online rows
     with pytest.raises(ValueError, match="must be even"):
         RLPDConfig(batch_size=15)
 
 
 def test_layer_norm_ensemble_is_independent_normalised_mlps():
-    torch.manual_seed(0)
-    critics = LayerNormCriticEnsemble(obs_dim=3, act_dim=2, hidden_sizes=(8, 8), n=4)
-    with torch.no_grad():  # members get their own LayerNorm gains and biases
+    seeds, q, hidden = (0, 1), 4, (8, 8)
+    agent = rlpd_agent(seeds, num_qs=q)
+    critics = agent.critics
+    assert isinstance(critics, StackedNormMLP) and critics.members == len(seeds) * q
+    g = torch.Generator().manual_seed(0)
+    obs, act = torch.randn(2, 5, OBS, generator=g), torch.randn(2, 5, ACT, generator=g)
+    # at the start, member k's critics are the LayerNorm ensemble its seed draws
+    for k, seed in enumerate(seeds):
+        ensemble, _ = agent.member_networks(seed, OBS, ACT, -np.ones(ACT), np.ones(ACT))
+        assert isinstance(ensemble, LayerNormCriticEnsemble)
+        with torch.no_grad():
+            expected = ensemble(obs[k], act[k])
+            got = critic_ensembles(critics, obs, act, q)[k]
+        assert torch.allclose(got, expected, atol=1e-6)
+    with torch.no_grad():  # every critic gets its own LayerNorm gains and biases
         for gain, bias in zip(critics.norm_gains, critics.norm_biases):
-            gain.uniform_(0.5, 1.5)
-            bias.uniform_(-0.1, 0.1)
-    obs, act = torch.randn(5, 3), torch.randn(5, 2)
-    q = critics(obs, act)
-    assert q.shape == (4, 5)
-    for member in range(4):
-        x = torch.cat([obs, act], dim=-1)
-        for k, (w, b) in enumerate(zip(critics.weights, critics.biases)):
-            x = F.linear(x, w[member].T, b[member, 0])
-            if k < 2:
-                x = F.layer_norm(
-                    x, (8,), critics.norm_gains[k][member, 0], critics.norm_biases[k][member, 0]
-                )
-                x = torch.relu(x)
-        assert torch.allclose(q[member], x.squeeze(-1), atol=1e-5)
-    assert len({round(v, 4) for v in q[:, 0].tolist()}) == 4
+            gain.uniform_(0.5, 1.5, generator=g)
+            bias.uniform_(-0.1, 0.1, generator=g)
+        values = critic_ensembles(critics, obs, act, q)
+    assert values.shape == (2, q, 5)
+    for k in range(2):
+        for i in range(q):
+            c = k * q + i  # member-major
+            x = torch.cat([obs[k], act[k]], dim=-1)
+            for layer, (w, b) in enumerate(zip(critics.weights, critics.biases)):
+                x = F.linear(x, w[c].T, b[c, 0])
+                if layer < len(hidden):
+                    gain, bias = critics.norm_gains[layer][c, 0], critics.norm_biases[layer][c, 0]
+                    x = torch.relu(F.layer_norm(x, (hidden[layer],), gain, bias))
+            assert torch.allclose(values[k, i], x.squeeze(-1), atol=1e-5)
+    assert len({round(v, 4) for v in values[:, :, 0].flatten().tolist()}) == 2 * q
 
 
-def constant_members(critics, values: list[float]) -> None:
-    """Member i outputs values[i] whatever its input."""
+def constant_critics(critics, values: list[float]) -> None:
+    """Critic c of the stack (member-major) outputs values[c] whatever its input."""
     with torch.no_grad():
         for w, b in zip(critics.weights, critics.biases):
             w.zero_()
@@ -74,63 +106,97 @@ def constant_members(critics, values: list[float]) -> None:
 
 @pytest.mark.parametrize("backup_entropy", [True, False])
 def test_target_is_the_minimum_over_the_drawn_subset_of_target_critics(backup_entropy):
-    config = RLPDConfig(hidden_sizes=(8, 8), backup_entropy=backup_entropy)
-    agent = RLPDAgent(2, 1, -np.ones(1), np.ones(1), config, seed=0)
-    assert agent.critics.n == 10 and isinstance(agent.critics, LayerNormCriticEnsemble)
-    values = [5.0, 3.0, 8.0, -1.0, 7.0, 2.0, 9.0, 4.0, 6.0, 0.5]
-    constant_members(agent.critics_target, values)
-    next_obs, noise = torch.randn(4, 2), torch.randn(4, 1)
-    alpha = torch.tensor(0.2)
-    with torch.no_grad():
-        _, log_prob = agent.policy.sample(next_obs, noise=noise)
-    entropy_term = alpha * log_prob if backup_entropy else torch.zeros(4)
-    for subset, expected in (([0, 2], 5.0), ([6, 4], 7.0), ([3, 9], -1.0)):
-        value = agent.next_state_value(next_obs, noise, alpha, torch.tensor(subset))
-        assert value.tolist() == pytest.approx((expected - entropy_term).tolist(), abs=1e-5)
+    agent = rlpd_agent((0, 1), backup_entropy=backup_entropy)
+    assert agent.per_member == 10 and isinstance(agent.critics, StackedNormMLP)
+    values = [5.0, 3.0, 8.0, -1.0, 7.0, 2.0, 9.0, 4.0, 6.0, 0.5]  # member 0's; 1's reversed
+    g = torch.Generator().manual_seed(1)
+    rows, gamma, reward = 4, agent.config.gamma, 20.0
+    for subsets, expected in (
+        ([[0, 2], [1, 2]], [5.0, 4.0]),
+        ([[6, 4], [9, 1]], [7.0, 5.0]),
+        ([[3, 9], [6, 3]], [-1.0, -1.0]),
+    ):
+        constant_critics(agent.critics_target, [*values, *values[::-1]])
+        constant_critics(agent.critics, [0.0] * 20)  # Q = 0: the loss is the mean of y^2
+        next_obs = torch.randn(2, rows, OBS, generator=g)
+        next_noise, new_noise = torch.randn(2, rows, ACT, generator=g), torch.zeros(2, rows, 1)
+        batch = Batch(
+            torch.randn(2, rows, OBS, generator=g),
+            torch.rand(2, rows, ACT, generator=g) * 2 - 1,
+            torch.full((2, rows), reward),
+            next_obs,
+            torch.zeros(2, rows),
+        )
+        alpha = agent.log_alpha.detach().exp()[:, None]
+        with torch.no_grad():
+            _, log_prob = agent.policy.sample(next_obs, noise=next_noise)
+        entropy = alpha * log_prob if backup_entropy else torch.zeros(2, rows)
+        y = reward + gamma * (torch.tensor(expected)[:, None] - entropy)
+        noise = (next_noise, torch.tensor(subsets), new_noise)
+        losses = agent._rlpd_step(batch, noise, actor=False)
+        assert losses["q_loss"].tolist() == pytest.approx(y.pow(2).mean(-1).tolist(), rel=1e-5)
 
 
 def test_utd_critic_steps_on_fresh_subsets_then_one_actor_step():
     config = RLPDConfig(hidden_sizes=(8, 8), utd=3)
     assert config.gradient_steps == 3  # the shared loop's minibatches per env step
-    agent = RLPDAgent(2, 1, -np.ones(1), np.ones(1), config, seed=0)
-    subsets, actor_steps = [], []
-    critic_step, actor_step = agent.critic_step, agent.actor_step
-    agent.critic_step = lambda **kw: subsets.append(kw["subset"].tolist()) or critic_step(**kw)
-    agent.actor_step = lambda **kw: actor_steps.append(len(subsets)) or actor_step(**kw)
-    g = torch.Generator().manual_seed(0)
-    batch = Batch(
-        torch.randn(8, 2, generator=g),
-        torch.rand(8, 1, generator=g) * 2 - 1,
-        torch.randn(8, generator=g),
-        torch.randn(8, 2, generator=g),
-        torch.zeros(8),
-    )
+    agent = RLPDAgent([0, 1], MOUNTAINCAR, config, demo_buffer(), cuda_graphs=False)
+    agent.buffer = agent.make_replay(2, OBS, 50)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        obs = rng.normal(size=(2, OBS)).astype(np.float32)
+        agent.buffer.add(obs, rng.uniform(-1, 1, (2, ACT)), rng.normal(size=2), obs, np.zeros(2))
+    subsets, steps = [], []
+    rlpd_step = agent._rlpd_step
+
+    def recorded(batch, noise, actor):
+        subsets.append(noise[1].tolist())
+        steps.append(actor)
+        return rlpd_step(batch, noise, actor)
+
+    agent._rlpd_step = recorded
+    rngs = [np.random.default_rng(s) for s in (0, 1)]
+    policy = [p.detach().clone() for p in agent.policy.parameters()]
+    critics = [p.detach().clone() for p in agent.critics.parameters()]
+    keys = []
     for _ in range(6):  # two env steps' worth
-        losses = agent.update(batch)
-    assert actor_steps == [3, 6] and "policy_loss" in losses
-    assert all(len(set(s)) == 2 and all(0 <= i < 10 for i in s) for s in subsets)
-    assert len({tuple(sorted(s)) for s in subsets}) > 1  # drawn afresh
+        losses = agent.update(rngs)
+        keys.append("policy_loss" in losses)
+        moved = any(not torch.equal(a, b) for a, b in zip(policy, agent.policy.parameters()))
+        assert moved == keys[-1]  # the actor steps only with the last critic step
+        assert any(not torch.equal(a, b) for a, b in zip(critics, agent.critics.parameters()))
+        policy = [p.detach().clone() for p in agent.policy.parameters()]
+        critics = [p.detach().clone() for p in agent.critics.parameters()]
+    assert keys == steps == [False, False, True, False, False, True]
+    assert agent.critic_updates == 6
+    assert set(losses) == {"q_loss", "policy_loss", "alpha", "entropy"}
+    per_member = [s for step in subsets for s in step]
+    assert all(len(set(s)) == 2 and all(0 <= i < 10 for i in s) for s in per_member)
+    for k in range(2):  # each member draws its subsets afresh
+        assert len({tuple(sorted(step[k])) for step in subsets}) > 1
 
 
 def test_rlpd_trains_on_half_demonstration_minibatches_deterministically(monkeypatch):
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     demo_states = {tuple(s) for s in demos.observations.tolist()}
     batches = []
-    sample = SymmetricReplay.sample
+    sample = StackedSymmetricReplay.sample
 
-    def recorded(self, batch_size, rng):
-        batch = sample(self, batch_size, rng)
-        batches.append(batch.observations.numpy().copy())
+    def recorded(self, batch_size, rngs):
+        batch = sample(self, batch_size, rngs)
+        batches.append(batch.observations[0].numpy().copy())
         return batch
 
-    monkeypatch.setattr(SymmetricReplay, "sample", recorded)
-    first, buffer = train_tiny("rlpd", seed=3, steps=300, utd=2)
+    monkeypatch.setattr(StackedSymmetricReplay, "sample", recorded)
+    first, replay = train_tiny("rlpd", seed=3, steps=300, utd=2)
     assert len(batches) == 2 * (300 - 100 + 1)  # utd minibatches per env step from step 100
-    online_states = {tuple(s) for s in buffer.observations[: len(buffer)].tolist()}
+    buffer = replay.member(0)
+    online_states = {tuple(s) for s in buffer.observations.tolist()}
     for rows in batches[::25]:
         assert all(tuple(s) in demo_states for s in rows[:8].tolist())
         assert all(tuple(s) in online_states for s in rows[8:].tolist())
-    assert len(buffer) == 300  # the demonstrations stay out of the online buffer
+    assert replay.size == 300  # the demonstrations stay out of the online buffer
+    assert len(replay.demos) == len(demos.observations)
     monkeypatch.undo()
     second, _ = train_tiny("rlpd", seed=3, steps=300, utd=2)
     assert curve_signature(first) == curve_signature(second)
@@ -154,13 +220,14 @@ def test_rlpd_explains_missing_transitions(monkeypatch):
 def test_killed_rlpd_run_resumes_onto_the_uninterrupted_curve(tmp_path):
     # Hopper ends episodes quickly, which gives checkpoints before the kill
     overrides = {"hidden_sizes": (16, 16), "num_qs": 4}
-    reference, reference_buffer, _ = run("rlpd", "Hopper-v5", 600, **overrides)
+    reference, reference_replay, _ = run("rlpd", "Hopper-v5", 600, **overrides)
     checkpoint = tmp_path / "checkpoint.pt"
     with pytest.raises(Killed):
         run("rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, kill_at=450, **overrides)
-    resumed, resumed_buffer, resumed_from = run(
+    resumed, resumed_replay, resumed_from = run(
         "rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, **overrides
     )
     assert 150 < resumed_from < 450
     assert curve_signature(resumed) == curve_signature(reference)
-    assert np.array_equal(resumed_buffer.actions[:600], reference_buffer.actions[:600])
+    assert resumed_replay.size == reference_replay.size == 600
+    assert np.array_equal(resumed_replay.member(0).actions, reference_replay.member(0).actions)

@@ -5,10 +5,9 @@ import pytest
 import torch
 from torch import distributions as D
 
-from baselines.common.context import TrainContext
 from baselines.common.networks import TanhGaussianPolicy, VNetwork, soft_update
 from baselines.drl_eg import DRLEGConfig
-from baselines.sac import SACConfig, build_agent, q_target, v_target
+from baselines.sac import SACAgent, SACConfig, q_target, v_target
 from tests.helpers import MOUNTAINCAR, TINY, train_tiny
 
 
@@ -59,7 +58,8 @@ def test_tanh_gaussian_log_prob_matches_torch_distributions():
 
 def test_truncated_transitions_are_stored_as_not_terminated_with_their_real_next_state():
     # 1000 steps cross MountainCar's 999-step limit; no update happens (learning_starts > steps)
-    _, buffer = train_tiny("sac", steps=1000, learning_starts=5000)
+    _, replay = train_tiny("sac", steps=1000, learning_starts=5000)
+    buffer = replay.member(0)
     assert buffer.terminated[:1000].sum() == 0.0
     last_of_episode = 998
     # the stored next state is the final state of the episode, not the reset state after it
@@ -77,33 +77,29 @@ def test_same_seed_same_curve_on_cpu():
 
 
 def test_sac_and_drl_eg_start_from_identical_weights():
-    ctx = TrainContext(env_id=MOUNTAINCAR, seed=11, total_steps=1, eval_interval=1, eval_episodes=1)
-    sac = build_agent(ctx, SACConfig(**TINY))
-    drl = build_agent(ctx, DRLEGConfig(**TINY))
-    for net in ("q1", "q2", "v", "v_target", "policy"):
+    sac = SACAgent([11], MOUNTAINCAR, SACConfig(**TINY))
+    drl = SACAgent([11], MOUNTAINCAR, DRLEGConfig(**TINY))
+    for net in ("critics", "v", "v_target", "policy"):
         a, b = getattr(sac, net).state_dict(), getattr(drl, net).state_dict()
         assert all(torch.equal(a[k], b[k]) for k in a)
-    other = build_agent(
-        TrainContext(env_id=MOUNTAINCAR, seed=12, total_steps=1, eval_interval=1, eval_episodes=1),
-        SACConfig(**TINY),
-    )
-    assert not torch.equal(other.policy.trunk[0].weight, sac.policy.trunk[0].weight)
+    other = SACAgent([12], MOUNTAINCAR, SACConfig(**TINY))
+    assert not torch.equal(other.policy.trunk.weights[0], sac.policy.trunk.weights[0])
 
 
 def test_update_reduces_q_loss_on_a_fixed_batch():
-    ctx = TrainContext(env_id=MOUNTAINCAR, seed=0, total_steps=1, eval_interval=1, eval_episodes=1)
-    agent = build_agent(ctx, SACConfig(hidden_sizes=(32, 32), learning_rate=1e-2))
+    agent = SACAgent([0], MOUNTAINCAR, SACConfig(hidden_sizes=(32, 32), learning_rate=1e-2))
     from baselines.common.buffer import Batch
 
     g = torch.Generator().manual_seed(0)
     batch = Batch(
-        torch.randn(64, 2, generator=g),
-        torch.rand(64, 1, generator=g) * 2 - 1,
-        torch.randn(64, generator=g),
-        torch.randn(64, 2, generator=g),
-        torch.zeros(64),
+        torch.randn(1, 64, 2, generator=g),
+        torch.rand(1, 64, 1, generator=g) * 2 - 1,
+        torch.randn(1, 64, generator=g),
+        torch.randn(1, 64, 2, generator=g),
+        torch.zeros(1, 64),
     )
-    losses = [agent.update(batch)["q_loss"] for _ in range(60)]
+    noise = torch.randn(1, 64, 1, generator=g)
+    losses = [float(agent._gradient_step(batch, noise)["q_loss"][0]) for _ in range(60)]
     assert all(math.isfinite(x) for x in losses)
     assert losses[-1] < losses[0]
 
@@ -141,7 +137,8 @@ def test_the_curve_records_what_the_training_episodes_earned():
     """Each point's train_return is the mean return of the training episodes that ended
     since the point before, read back from the buffer's rewards (Hopper's untrained
     episodes end within a few dozen steps)."""
-    points, buffer = train_tiny("sac", steps=400, env_id="Hopper-v5")
+    points, replay = train_tiny("sac", steps=400, env_id="Hopper-v5")
+    buffer = replay.member(0)
     rewards, ends = buffer.rewards[:400], np.flatnonzero(buffer.terminated[:400]) + 1
     expected, start = {200: [], 400: []}, 0
     for end in ends:

@@ -5,8 +5,9 @@ import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch
+from baselines.offpolicy import agent_state, load_agent_state
 from baselines.sac_twin_q import CriticEnsemble, TwinQSACAgent, TwinQSACConfig
-from tests.helpers import train_tiny
+from tests.helpers import MOUNTAINCAR, train_tiny
 
 
 def test_critic_ensemble_is_independent_mlps_evaluated_together():
@@ -26,21 +27,27 @@ def test_critic_ensemble_is_independent_mlps_evaluated_together():
 
 def _agent_and_batch(seed: int = 0):
     config = TwinQSACConfig(hidden_sizes=(32, 32), learning_rate=3e-3)
-    agent = TwinQSACAgent(2, 1, -torch.ones(1).numpy(), torch.ones(1).numpy(), config, seed)
+    agent = TwinQSACAgent([seed], MOUNTAINCAR, config)
     g = torch.Generator().manual_seed(seed)
     batch = Batch(
-        torch.randn(64, 2, generator=g),
-        torch.rand(64, 1, generator=g) * 2 - 1,
-        torch.randn(64, generator=g),
-        torch.randn(64, 2, generator=g),
-        torch.zeros(64),
+        torch.randn(1, 64, 2, generator=g),
+        torch.rand(1, 64, 1, generator=g) * 2 - 1,
+        torch.randn(1, 64, generator=g),
+        torch.randn(1, 64, 2, generator=g),
+        torch.zeros(1, 64),
     )
     return agent, batch
 
 
+def _update(agent, batch, step: int) -> dict[str, float]:
+    g = torch.Generator().manual_seed(step)  # the same noise for any agent at this step
+    noise = (torch.randn(1, 64, 1, generator=g), torch.randn(1, 64, 1, generator=g))
+    return {name: float(value[0]) for name, value in agent._gradient_step(batch, noise).items()}
+
+
 def test_update_fits_the_critics_and_tunes_the_temperature_towards_the_target_entropy():
     agent, batch = _agent_and_batch()
-    history = [agent.update(batch) for _ in range(80)]
+    history = [_update(agent, batch, step) for step in range(80)]
     assert all(math.isfinite(h["q_loss"]) for h in history)
     assert history[-1]["q_loss"] < history[0]["q_loss"]
     # a fresh policy is far more random than the target entropy (-1 for one action
@@ -51,12 +58,12 @@ def test_update_fits_the_critics_and_tunes_the_temperature_towards_the_target_en
 
 def test_state_dict_round_trip_continues_identically():
     agent, batch = _agent_and_batch()
-    for _ in range(5):
-        agent.update(batch)
-    state = copy.deepcopy(agent.state_dict())  # as a checkpoint on disk would hold it
+    for step in range(5):
+        _update(agent, batch, step)
+    state = copy.deepcopy(agent_state(agent))  # as a checkpoint on disk would hold it
     twin, _ = _agent_and_batch(seed=1)
-    twin.load_state_dict(state)
-    assert agent.update(batch) == twin.update(batch)
+    load_agent_state(twin, state)
+    assert _update(agent, batch, 5) == _update(twin, batch, 5)
 
 
 def test_same_seed_same_curve_on_cpu():

@@ -14,7 +14,14 @@ from baselines.common.checkpoint import TimeLimitReached
 from replicate import experiments
 from replicate.cli import TIME_LIMIT_EXIT, main, parse_time_limit
 from replicate.errors import HarnessError
-from replicate.runner import CHECKPOINT_FILE, SITTINGS_FILE, execute, execute_batch, prepare
+from replicate.runner import (
+    CHECKPOINT_FILE,
+    SITTINGS_FILE,
+    batch_id,
+    execute,
+    execute_batch,
+    prepare,
+)
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
@@ -89,7 +96,8 @@ def test_every_figure_command_takes_the_limit(capsys):
         assert "--time-limit DURATION" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("algo", ["sac", "ppo", "ddpgfd"])  # the three one-run loops
+# the off-policy trainer (a run is a batch of one) and the two loops of their own
+@pytest.mark.parametrize("algo", ["sac", "ppo", "ddpgfd"])
 def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_path, algo):
     hyper = (
         {"hidden_sizes": (16, 16)}
@@ -104,7 +112,10 @@ def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_
     # end), saves there although checkpoints are off, and stops
     with pytest.raises(TimeLimitReached) as stop:
         execute(prepared, store, device="cpu", checkpoint_interval=0, deadline=time.time() - 1)
-    work = store / f".partial-{prepared.run_id}"
+    from baselines.registry import get_algorithm
+
+    batchable = get_algorithm(algo).batchable
+    work = store / (f".{batch_id([prepared])}" if batchable else f".partial-{prepared.run_id}")
     assert 0 < stop.value.step < 1200
     assert (work / CHECKPOINT_FILE).is_file() and not (store / prepared.run_id).exists()
     assert not list(store.glob(".lock-*"))

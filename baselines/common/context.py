@@ -60,3 +60,47 @@ class TrainContext:
     deadline: float | None = None
     # Where to keep the weights of the policy with the best evaluation so far (experts).
     best_policy_path: Path | None = None
+
+
+@dataclass
+class BatchContext:
+    """What the runner hands an off-policy trainer: one ``TrainContext`` per member (task,
+    seed, budget, demonstrations, curve sink) and what the members share. A single run is a
+    batch of one."""
+
+    members: list[TrainContext]
+    device: str = "cpu"
+    cuda_graphs: bool = True
+    env_workers: int = 0  # processes stepping the envs; 0: in this process
+    on_steps: Callable[[int], None] = field(default=lambda n: None)  # env steps, all members
+    on_resume: Callable[[int], None] = field(default=lambda step: None)
+    on_member_failed: Callable[[int, str], None] = field(default=lambda k, reason: None)
+    checkpoint_path: Path | None = None
+    checkpoint_interval: int = 0
+    deadline: float | None = None  # as TrainContext.deadline, for the batch as a whole
+
+    @property
+    def seeds(self) -> list[int]:
+        return [m.seed for m in self.members]
+
+    def shared(self, name: str) -> object:
+        """A setting every member must have alike."""
+        values = {getattr(m, name) for m in self.members}
+        if len(values) != 1:
+            raise ValueError(f"the members of a batch differ in {name}: {sorted(values)}")
+        return values.pop()
+
+    @classmethod
+    def of_one(cls, ctx: TrainContext, on_failed: Callable[[int, str], None]) -> BatchContext:
+        """The batch of one that trains ``ctx``'s run."""
+        return cls(
+            [ctx],
+            device=ctx.device,
+            cuda_graphs=ctx.cuda_graphs,
+            on_steps=ctx.on_steps,
+            on_resume=ctx.on_resume,
+            on_member_failed=on_failed,
+            checkpoint_path=ctx.checkpoint_path,
+            checkpoint_interval=ctx.checkpoint_interval,
+            deadline=ctx.deadline,
+        )

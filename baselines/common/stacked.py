@@ -227,9 +227,15 @@ class StackedReplay:
             terminated=rows[..., -1],
         )
 
+    def member(self, k: int) -> Batch:
+        """Member k's stored transitions in slot order, as numpy arrays on the CPU."""
+        return Batch(
+            *(t.cpu().numpy() for t in vars(self.split(self.data[k, : self.size])).values())
+        )
+
     def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
         """Uniform with replacement, member k's indices from ``rngs[k]`` alone (as
-        ``ReplayBuffer.sample`` draws them)."""
+        ``ReplayBuffer.sample`` draws them for one run)."""
         indices = np.stack([rng.integers(0, self.size, size=batch_size) for rng in rngs])
         return self.gather(torch.from_numpy(indices).to(self.device))
 
@@ -282,7 +288,7 @@ class StackedSymmetricReplay(StackedReplay):
 
     def sample(self, batch_size: int, rngs: Sequence[np.random.Generator]) -> Batch:
         """Member k draws ``batch_size // 2`` demonstration rows, then the rest online, from
-        ``rngs[k]`` alone (as ``baselines.rlpd.SymmetricReplay.sample`` draws them)."""
+        ``rngs[k]`` alone."""
         half = batch_size // 2
         demo_rows, online_rows = [], []
         for rng in rngs:
