@@ -260,8 +260,11 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     env_id = _run_spec(work_dirs[0])["env_id"]
     seeds, step = list(checkpoint["seeds"]), int(checkpoint["step"])
     _not_behind(store, ident, step)
-    if "data" not in checkpoint.get("buffer", {}):
-        raise CarryError(f"{ident}'s checkpoint has no stacked replay", "let it finish here")
+    if "data" not in (checkpoint.get("buffer") or {}):  # PPO, DDPGfD: loops of their own
+        raise CarryError(
+            f"{ident}'s checkpoint has no replay of the SAC family's layout",
+            "let it finish here",
+        )
     data = checkpoint["buffer"]["data"].numpy()
     if not checkpoint["alive"].all():
         raise CarryError(f"{ident} has a failed member", "let the batch finish where it is")
@@ -305,25 +308,10 @@ def _size(path: Path) -> int:
 
 
 def unfinished(store: Path) -> list[tuple[str, str]]:
-    """(kind, name) of every checkpoint in the store: seed batches (a single run of the SAC
-    family is a batch of one), then runs of the algorithms with loops of their own. A batch
-    member's own directory may still hold a checkpoint of an earlier attempt; the batch's
-    checkpoint is the one that counts, so that one is left out."""
+    """(kind, name) of every checkpoint in the store: seed batches (a run training alone is
+    a batch of one)."""
     store = Path(store)
-    batches = [p.parent for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
-    in_batches = {
-        run_id
-        for batch_dir in batches
-        if (batch_dir / "members.json").is_file()
-        for run_id in json.loads((batch_dir / "members.json").read_text())
-    }
-    runs = [
-        p.parent.name.removeprefix(".partial-")
-        for p in sorted(store.glob(".partial-*/" + CHECKPOINT_FILE))
-    ]
-    return [("batch", d.name[1:]) for d in batches] + [
-        ("run", r) for r in runs if r not in in_batches
-    ]
+    return [("batch", p.parent.name[1:]) for p in sorted(store.glob(".batch-*/" + CHECKPOINT_FILE))]
 
 
 def prune(store: Path) -> list[str]:
@@ -338,11 +326,6 @@ def prune(store: Path) -> list[str]:
 
 def _pack_one(store: Path, kind: str, name: str, progress: bool) -> Packed | str:
     """One item of ``pack_all``: what was packed, or the line that says why not."""
-    if kind == "run":
-        return (
-            f"{name} trains in a loop of its own (DDPGfD, PPO), whose replay is not "
-            "carried; fix: let it finish where it is"
-        )
     try:
         return pack_batch(store, name, progress)
     except CarryError as exc:

@@ -2,16 +2,18 @@
 
 A run directory is named by the algorithm, env, seed and a hash of the resolved spec. It is
 built under a hidden name (``.partial-<run id>``) and renamed into place only when training
-finished, so a directory with the final name is always complete. While it trains, the run
-checkpoints into its hidden directory; a run that was interrupted (Ctrl-C, kill -9, a lost
-machine, a time limit) resumes from there when it is started again and finishes on the
-same curve. A run that raised an error is recorded as failed and its hidden directory
-removed. A lock file keeps two processes from training the same run at once.
+finished, so a directory with the final name is always complete. Every run trains as a seed
+batch, of one where it trains alone: the batch checkpoints into its own hidden directory
+(``.batch-<id>``), and a run that was interrupted (Ctrl-C, kill -9, a lost machine, a time
+limit) resumes from there when it is started again and finishes on the same curve. A run
+that raised an error is recorded as failed and its hidden directories removed. A lock file
+per run keeps two processes from training the same run at once.
 
 Files of a run:
     spec.json        the resolved spec: hyperparameters with defaults, demonstration hash
     curve.csv        the evaluation curve (env steps, return of each test episode, ...)
-    provenance.json  versions, git revision, machine, seed, wall time, env steps per second
+    provenance.json  versions, git revision, machine, seed, wall time, env steps per second,
+                     the trainer's code path and the seed batch it trained in
     sittings.json    one entry per part of the training (a run interrupted and resumed
                      once was trained in two parts): start, step resumed from, wall time,
                      device; provenance.json repeats the list under "sittings"
@@ -37,7 +39,7 @@ import numpy as np
 import torch
 
 from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
-from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.context import BatchContext, EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import batchable_algorithms, get_algorithm
 from replicate import carry, provenance
@@ -161,82 +163,26 @@ def execute(
     deadline: float | None = None,
 ) -> Run:
     """Train ``prepared`` into the store unless a complete run with its address exists;
-    resume it from its checkpoint if an earlier attempt was interrupted. ``device``: ``auto``
-    (the GPU when there is one, for algorithms with a GPU path), ``cpu`` or ``cuda``. A
-    checkpoint made on the other kind of device is resumed there when ``follow_checkpoint``
-    (default: when ``device`` is ``auto``), and refused otherwise. ``deadline`` (a
-    ``time.time()``): once it has passed, the run checkpoints at its next chance and raises
-    ``TimeLimitReached``, its checkpoint kept for the same call to resume."""
-    if follow_checkpoint is None:
-        follow_checkpoint = device == "auto"
-    check_device(device)
-    store = Path(store)
-    final_dir = prepared.directory(store)
-    if is_complete(final_dir):
-        return load_run(final_dir)
-    if get_algorithm(prepared.spec.algo).batchable:
-        # a run of the SAC family is a seed batch of one: one path locks, resumes and lands it
-        outcome = execute_batch(
-            [prepared],
-            store,
-            on_steps,
-            checkpoint_interval,
-            device,
-            follow_checkpoint,
-            deadline=deadline,
-        )
-        if outcome.failed:
-            raise FloatingPointError(outcome.failed[0][1])
-        return load_run(final_dir)
-    store.mkdir(parents=True, exist_ok=True)
-    work_dir = partial_directory(prepared, store)
-    lock_path = store / f".lock-{prepared.run_id}"
-    locked = RunLockedError(
-        f"run {prepared.run_id} is being trained by another process",
-        "wait for it, or stop that process",
+    resume it from its checkpoint if an earlier attempt was interrupted. A run is a seed
+    batch of one (``execute_batch``): one path locks, resumes, lands and records every run.
+    ``device``: ``auto`` (the GPU when there is one, for algorithms with a GPU path),
+    ``cpu`` or ``cuda``. A checkpoint made on the other kind of device is resumed there when
+    ``follow_checkpoint`` (default: when ``device`` is ``auto``), and refused otherwise.
+    ``deadline`` (a ``time.time()``): once it has passed, the run checkpoints at its next
+    chance and raises ``TimeLimitReached``, its checkpoint kept for the same call to
+    resume. A run whose losses diverge raises ``FloatingPointError``."""
+    final_dir = prepared.directory(Path(store))
+    outcome = execute_batch(
+        [prepared],
+        store,
+        on_steps,
+        checkpoint_interval,
+        device,
+        follow_checkpoint,
+        deadline=deadline,
     )
-    with open(lock_path, "w") as lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
-        except BlockingIOError:
-            raise locked from None
-        if not lock_path.exists() or os.stat(lock_path).st_ino != os.fstat(lock.fileno()).st_ino:
-            raise locked  # our file was unlinked by a finishing holder: someone else's turn
-        try:
-            if not is_complete(final_dir):  # another process may have finished it
-                work_dir.mkdir(exist_ok=True)
-                if not (work_dir / "provenance.json").is_file():  # else: trained, not renamed
-                    try:
-                        _train_into(
-                            prepared,
-                            work_dir,
-                            on_steps,
-                            checkpoint_interval,
-                            device,
-                            follow_checkpoint,
-                            deadline,
-                        )
-                    except CheckpointDeviceError as exc:  # the checkpoint stays
-                        raise HarnessError(
-                            str(exc),
-                            "run it on the device its checkpoint names, or delete its directory",
-                        ) from None
-                    except torch.OutOfMemoryError:  # the GPU may be freer next time: keep it
-                        raise HarnessError(
-                            f"run {prepared.run_id} ran out of GPU memory; its last "
-                            "checkpoint is kept",
-                            "run the same command again with fewer "
-                            "--gpu-workers, or with --device cpu",
-                        ) from None
-                    except RECURRING_ERRORS:
-                        shutil.rmtree(work_dir, ignore_errors=True)  # resuming would fail again
-                        raise
-                (work_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
-                if final_dir.exists():  # a stale incomplete directory of the same address
-                    shutil.rmtree(final_dir)
-                os.replace(work_dir, final_dir)
-        finally:
-            lock_path.unlink(missing_ok=True)
+    if outcome.failed:
+        raise FloatingPointError(outcome.failed[0][1])
     return load_run(final_dir)
 
 
@@ -378,44 +324,22 @@ def _context(
     )
 
 
-def _train_into(
-    prepared: PreparedRun,
-    run_dir: Path,
-    on_steps: Callable[[int], None],
-    checkpoint_interval: int,
-    requested_device: str,
-    follow_checkpoint: bool,
-    deadline: float | None = None,
-) -> None:
-    device = resolve_device(requested_device, get_algorithm(prepared.spec.algo).gpu)
-    parts_path = run_dir / SITTINGS_FILE
-    earlier = json.loads(parts_path.read_text()) if parts_path.is_file() else []
-    # decided before anything in run_dir is touched
-    device = resume_device(
-        device,
-        _checkpoint_device(run_dir, earlier),
-        follow_checkpoint,
-        what=f"run {prepared.run_id} ({run_dir})",
-    )
-    recorder = _RunRecorder(prepared, run_dir, device)
-    recorder.open()
-    ctx = _context(
-        prepared,
-        recorder,
-        device,
-        on_steps=on_steps,
-        checkpoint_path=run_dir / CHECKPOINT_FILE,
-        checkpoint_interval=checkpoint_interval,
-        deadline=deadline,
-    )
-    try:
-        get_algorithm(prepared.spec.algo).train(ctx, prepared.config)
-    except TimeLimitReached:
-        recorder.record_part()  # this part's wall time up to the stop
-        raise
-    finally:
-        recorder.close()
-    recorder.finish()
+def _batch_of_one(train: Callable[[TrainContext, Any], Any]) -> Callable[..., Any]:
+    """A trainer with a loop of its own, ``train(ctx, config)``, as the trainer of a batch of
+    one: the batch's progress, checkpoint and deadline become the run's."""
+
+    def train_batch(bctx: BatchContext, configs: list[Any]) -> Any:
+        (ctx,) = bctx.members
+        ctx = dataclasses.replace(
+            ctx,
+            on_steps=bctx.on_steps,
+            checkpoint_path=bctx.checkpoint_path,
+            checkpoint_interval=bctx.checkpoint_interval,
+            deadline=bctx.deadline,
+        )
+        return train(ctx, configs[0])
+
+    return train_batch
 
 
 # Settings each member of a batch keeps for itself (the batched explorer reads them per
@@ -457,14 +381,12 @@ def execute_batch(
     env_workers: int = 0,
     deadline: float | None = None,
 ) -> BatchOutcome:
-    """Train ``members`` (one algorithm with a batched trainer, one env and budget,
-    different seeds) together in this process. Each member lands in the store as its own
-    run directory, at its own run address; its provenance names the batch.
-    A member that diverges fails alone. The batch checkpoints as a whole into
-    ``<store>/.<batch id>/`` and resumes from there when started again with the same
-    members; past ``deadline`` it checkpoints and stops, as ``execute`` does."""
-    from baselines.registry import batched_trainer
-
+    """Train ``members`` (one algorithm, one env and budget, different seeds) together in
+    this process; an algorithm with a loop of its own (PPO, DDPGfD) trains batches of one.
+    Each member lands in the store as its own run directory, at its own run address; its
+    provenance names the batch. A member that diverges fails alone. The batch checkpoints as
+    a whole into ``<store>/.<batch id>/`` and resumes from there when started again with the
+    same members; past ``deadline`` it checkpoints and stops (``TimeLimitReached``)."""
     if follow_checkpoint is None:
         follow_checkpoint = device == "auto"
     check_device(device)
@@ -472,13 +394,14 @@ def execute_batch(
     members = [p for p in members if not is_complete(p.directory(store))]
     if not members:
         return BatchOutcome([], [])
-    trainer = batched_trainer(members[0].spec.algo)
-    if len({batch_key(p) for p in members}) != 1 or trainer is None:
+    algorithm = get_algorithm(members[0].spec.algo)
+    if len({batch_key(p) for p in members}) != 1 or (len(members) > 1 and not algorithm.batchable):
         raise HarnessError(
             "the runs of a batch must differ only in seed, T2 and sigma, and "
-            f"their algorithm must have a batched trainer ({members[0].spec.algo})",
+            f"their algorithm must train in seed batches ({members[0].spec.algo})",
             f"batch only {', '.join(batchable_algorithms())} runs of one env and budget",
         )
+    trainer = algorithm.train_batch or _batch_of_one(algorithm.train)
     store.mkdir(parents=True, exist_ok=True)
     ident = batch_id(members)
     batch_dir = store / f".{ident}"
@@ -515,7 +438,7 @@ def execute_batch(
             carry.unpack_batch(store, ident)  # packed before, maybe on another machine
         batch_parts = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_parts.read_text()) if batch_parts.is_file() else []
-        resolved = resolve_device(device, has_gpu_path=True)
+        resolved = resolve_device(device, has_gpu_path=algorithm.gpu)
         try:
             resolved = resume_device(
                 resolved,
@@ -546,8 +469,6 @@ def execute_batch(
         def on_resume(step: int) -> None:
             for recorder in recorders:
                 recorder.on_resume(step)
-
-        from baselines.common.context import BatchContext
 
         bctx = BatchContext(
             contexts,

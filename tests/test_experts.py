@@ -104,7 +104,9 @@ def test_a_seed_batch_exports_its_best_member(expert_dir):
     assert sorted(run.spec["seed"] for run in runs) == [1, 2]
     for run in runs:
         assert run.curve["step"].tolist() == [0, 100, 200, 300]
-        assert run.curve["return_mean"].max() == pytest.approx(best[str(run.spec["seed"])], rel=1e-5)
+        assert run.curve["return_mean"].max() == pytest.approx(
+            best[str(run.spec["seed"])], rel=1e-5
+        )
         assert run.provenance["batch"]["size"] == 2
 
 

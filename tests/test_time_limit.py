@@ -112,10 +112,7 @@ def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_
     # end), saves there although checkpoints are off, and stops
     with pytest.raises(TimeLimitReached) as stop:
         execute(prepared, store, device="cpu", checkpoint_interval=0, deadline=time.time() - 1)
-    from baselines.registry import get_algorithm
-
-    batchable = get_algorithm(algo).batchable
-    work = store / (f".{batch_id([prepared])}" if batchable else f".partial-{prepared.run_id}")
+    work = store / f".{batch_id([prepared])}"  # a run training alone is a batch of one
     assert 0 < stop.value.step < 1200
     assert (work / CHECKPOINT_FILE).is_file() and not (store / prepared.run_id).exists()
     assert not list(store.glob(".lock-*"))
