@@ -6,7 +6,9 @@ of N (``baselines.common.stacked``): one batched product per layer serves all me
 no statistic is shared across them. Member k starts from the weights its seed gives
 (``torch.manual_seed(seed)`` before its networks are built, in a fixed order) and on CPU
 draws its exploration noise, replay indices and guide noise from streams of its own seed,
-so member k's numbers do not depend on which other members share its batch.
+so member k's numbers are the same, bit for bit, in any batch of two or more; a batch of one
+(a run trained alone) agrees with them to rounding, since the batched kernels round a stack
+of one differently.
 
 On a GPU the gradient step of all N members (replay sampling included) is one CUDA graph
 replay, and so is the policy's action for all N (not IBRL's: its imitation actions come from

@@ -80,34 +80,62 @@ def batch_curves(
     return points
 
 
-def assert_batch_updates_agree(
-    stacked, singles: list, buffers: list, rows: int, seeds, updates: int
-) -> None:
-    """``updates`` updates of a seed batch and of each member's one-run agent, each drawing
-    its replay rows from a generator of its seed: the same losses, member by member, within
-    1e-5."""
+def fill_replays(batch, alone: list, capacity: int, steps: int = 60) -> None:
+    """Give a seed batch of N and the batch of one of each of its seeds their replays, then
+    the same ``steps`` random transitions: member k's are batch of one k's."""
+    import numpy as np
+
+    obs_dim = batch.policy.trunk.weights[0].shape[1]
+    n, act_dim = batch.members, batch.act_dim
+    batch.buffer = batch.make_replay(n, obs_dim, capacity)
+    for agent in alone:
+        agent.buffer = agent.make_replay(1, obs_dim, capacity)
+    rng = np.random.default_rng(3)
+    for _ in range(steps):
+        rows = (
+            rng.normal(size=(n, obs_dim)).astype(np.float32),
+            rng.uniform(-1, 1, size=(n, act_dim)).astype(np.float32),
+            rng.normal(size=n).astype(np.float32),
+            rng.normal(size=(n, obs_dim)).astype(np.float32),
+            (rng.random(n) < 0.1).astype(np.float32),
+        )
+        batch.buffer.add(*rows)
+        for k, agent in enumerate(alone):
+            agent.buffer.add(*(row[k : k + 1] for row in rows))
+
+
+def assert_batch_updates_agree(batch, alone: list, seeds, updates: int) -> None:
+    """``updates`` updates of a seed batch and of the batch of one of each of its seeds,
+    member k and batch of one k drawing replay rows from a generator of seed k and noise
+    from their own streams: the same losses, member by member, within 1e-5."""
     import numpy as np
     import pytest
 
-    stacked_rngs = [np.random.default_rng(s) for s in seeds]
-    one_rngs = [np.random.default_rng(s) for s in seeds]
+    batch_rngs = [np.random.default_rng(s) for s in seeds]
+    alone_rngs = [[np.random.default_rng(s)] for s in seeds]
     for _ in range(updates):
-        losses = stacked.update(stacked_rngs)
-        for k, agent in enumerate(singles):
-            reference = agent.update(buffers[k].sample(rows, one_rngs[k]))
+        losses = batch.update(batch_rngs)
+        for k, agent in enumerate(alone):
+            reference = agent.update(alone_rngs[k])
             assert set(losses) == set(reference)
             for name, value in reference.items():
-                assert float(losses[name][k]) == pytest.approx(float(value), abs=1e-5, rel=1e-5), (
-                    name
-                )
+                assert float(losses[name][k]) == pytest.approx(
+                    float(value[0]), abs=1e-5, rel=1e-5
+                ), name
 
 
-def assert_batch_policies_agree(stacked, singles: list) -> None:
-    """Member k's stacked policy layers equal one-run agent k's, within 1e-5."""
+def assert_members_agree(batch, alone: list, name: str, per_member: int = 1, atol=1e-5) -> None:
+    """Member k's slices of the batch's stacked module ``name`` (``per_member`` stacked rows
+    each: 2 for twin critics) equal the batch of one k's, within ``atol``; the
+    temperatures too where the agents learn one."""
     import torch
 
-    for k, agent in enumerate(singles):
-        linears = [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)]
-        for (weight, bias), layer in zip(stacked.policy.trunk.member_linear(k), linears):
-            assert torch.allclose(weight, layer.weight, atol=1e-5)
-            assert torch.allclose(bias, layer.bias, atol=1e-5)
+    for k, agent in enumerate(alone):
+        rows = slice(k * per_member, (k + 1) * per_member)
+        mine, theirs = getattr(batch, name), getattr(agent, name)
+        named = dict(theirs.named_parameters())
+        assert len(named) == len(list(mine.parameters()))
+        for param, value in mine.named_parameters():
+            assert torch.allclose(value[rows], named[param], atol=atol), (name, param)
+        if hasattr(agent, "log_alpha"):
+            assert torch.allclose(batch.log_alpha[k], agent.log_alpha[0], atol=atol)

@@ -134,8 +134,7 @@ def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
             on_steps=_stop_after(400),
         )
     assert (
-        torch.load(next(tmp_path.glob(".batch-*/checkpoint.pt")), weights_only=False)["step"]
-        > 150
+        torch.load(next(tmp_path.glob(".batch-*/checkpoint.pt")), weights_only=False)["step"] > 150
     )
     assert main(["carry", "--store", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -63,10 +63,11 @@ def test_kill_minus_nine_then_resume(tmp_path):
     deadline = time.time() + 240
     checkpoint = None
     while time.time() < deadline and process.poll() is None:
-        found = list(store.glob(".partial-*/checkpoint.pt")) if store.exists() else []
+        # a run trains as a seed batch of one: the checkpoint is the batch's, the curve the run's
+        found = list(store.glob(".batch-*/checkpoint.pt")) if store.exists() else []
         parts = list(store.glob(".partial-*/sittings.json")) if store.exists() else []
         if found and parts and json.loads(parts[0].read_text())[-1]["wall_time_s"] > 0:
-            curve = pd.read_csv(found[0].parent / "curve.csv")
+            curve = pd.read_csv(parts[0].parent / "curve.csv")
             if curve["step"].max() >= 600:  # well past a few checkpoints
                 checkpoint = found[0]
                 break

@@ -1,7 +1,12 @@
-"""The seed-batched trainer: each member is the one-run path's run, trained beside others."""
+"""The off-policy trainer of the SAC family (``baselines.offpolicy``): N members with a
+leading member axis, a single run being N = 1. Member k trains as the batch of one of its
+seed does (to rounding; between batches of two or more, bit for bit): its initial weights,
+updates, guidance, evaluation, curve, failure and resume are its own, whatever members
+share its batch."""
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import signal
@@ -14,42 +19,50 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.batched import (
-    BatchContext,
-    StackedGuidedExplorer,
-    StackedSACAgent,
-    StackedTwinQAgent,
-    agent_state,
-    evaluate_members,
-    load_agent_state,
-)
 from baselines.common.buffer import Batch
-from baselines.common.context import TrainContext
+from baselines.common.context import BatchContext, TrainContext
 from baselines.common.evaluation import evaluate
-from baselines.drl_eg import DRLEGConfig, Guidance
-from baselines.registry import batched_trainer, get_algorithm
-from baselines.sac import SACAgent, SACConfig
+from baselines.common.networks import TanhGaussianPolicy
+from baselines.drl_eg import DRLEGConfig, GuidedExplorer, functional_discriminator, nearest_demo
+from baselines.offpolicy import agent_state, evaluate_members, load_agent_state
+from baselines.registry import batchable_algorithms, batched_trainer, get_algorithm
+from baselines.sac import SACAgent, SACConfig, SACNetworks
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from envs import make_env
 from envs.vector import EnvBatch
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute_batch, is_complete, prepare
 from replicate.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, curve_signature, train_tiny
+from tests.helpers import MOUNTAINCAR, TINY, assert_members_agree, curve_signature, train_tiny
 
-OBS, ACT, ROWS, SEEDS = 11, 3, 32, (0, 1, 2)
+HOPPER, OBS, ACT, ROWS, SEEDS = "Hopper-v5", 11, 3, 32, (0, 1, 2)
 ROOT = Path(__file__).resolve().parents[1]
+# each agent's stacked modules and how many stacked rows a member has in each
+MODULES = {
+    SACAgent: (("policy", 1), ("critics", 2), ("v", 1), ("v_target", 1)),
+    TwinQSACAgent: (("policy", 1), ("critics", 2), ("critics_target", 2)),
+}
 
 
-def _agents(agent_cls, config, seeds=SEEDS):
-    return [
-        agent_cls(OBS, ACT, -np.ones(ACT), np.ones(ACT), config, seed=s, cuda_graphs=False)
-        for s in seeds
-    ]
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """Agents updated here directly run on one thread, as training sets it (torch_threads)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
-def _minibatches(generator: torch.Generator) -> Batch:
-    n = len(SEEDS)
+def _agent(agent_cls, config, seeds):
+    return agent_cls(list(seeds), HOPPER, config, cuda_graphs=False)
+
+
+def _config(agent_cls, **overrides):
+    config_cls = TwinQSACConfig if agent_cls is TwinQSACAgent else SACConfig
+    return config_cls(**{"hidden_sizes": (32, 32), "batch_size": ROWS, **overrides})
+
+
+def _minibatches(generator: torch.Generator, n: int = len(SEEDS)) -> Batch:
     return Batch(
         torch.randn(n, ROWS, OBS, generator=generator),
         torch.rand(n, ROWS, ACT, generator=generator) * 2 - 1,
@@ -60,128 +73,140 @@ def _minibatches(generator: torch.Generator) -> Batch:
 
 
 def _member(batch: Batch, k: int) -> Batch:
-    return Batch(*[t[k] for t in vars(batch).values()])
+    """Member k's rows as the minibatch of a batch of one."""
+    return Batch(*[t[k : k + 1] for t in vars(batch).values()])
 
 
-@pytest.mark.parametrize("twin_q", [False, True])
-def test_batched_step_equals_one_run_steps(twin_q):
+@pytest.mark.parametrize("agent_cls", [SACAgent, TwinQSACAgent])
+def test_a_batched_gradient_step_equals_each_members_step_alone(agent_cls):
     """Three gradient steps of a batch of 3 on given minibatches and noise against the
-    one-run agents of the same seeds on the same numbers: losses and weights within 1e-5."""
-    config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=ROWS)
-    agent_cls = TwinQSACAgent if twin_q else SACAgent
-    singles = _agents(agent_cls, config)
-    stacked = (StackedTwinQAgent if twin_q else StackedSACAgent)(
-        _agents(agent_cls, config), config, "cpu"
-    )
+    batches of one of the same seeds on each member's slice of the same numbers: losses
+    and then weights (policy, critics, V or target critics, temperature) within 1e-5."""
+    twin_q = agent_cls is TwinQSACAgent
+    config = _config(agent_cls)
+    batch = _agent(agent_cls, config, SEEDS)
+    alone = [_agent(agent_cls, config, [s]) for s in SEEDS]
     generator = torch.Generator().manual_seed(7)
     for _ in range(3):
-        batch = _minibatches(generator)
+        minibatch = _minibatches(generator)
         noises = [
             torch.randn(len(SEEDS), ROWS, ACT, generator=generator)
             for _ in range(2 if twin_q else 1)
         ]
-        losses = stacked._gradient_step(batch, tuple(noises) if twin_q else noises[0])
-        for k, agent in enumerate(singles):
-            one = _member(batch, k)
-            inputs = dict(
-                obs=one.observations,
-                actions=one.actions,
-                rewards=one.rewards,
-                next_obs=one.next_observations,
-                terminated=one.terminated,
+        losses = batch._gradient_step(minibatch, tuple(noises) if twin_q else noises[0])
+        for k, agent in enumerate(alone):
+            mine = [noise[k : k + 1] for noise in noises]
+            reference = agent._gradient_step(
+                _member(minibatch, k), tuple(mine) if twin_q else mine[0]
             )
-            if twin_q:
-                reference = agent._gradient_step(
-                    **inputs, next_noise=noises[0][k], new_noise=noises[1][k]
-                )
-            else:
-                reference = agent._gradient_step(**inputs, noise=noises[0][k])
-            for name in ("q_loss", "policy_loss", "entropy"):
+            assert set(losses) == set(reference)
+            for name, value in reference.items():
                 assert float(losses[name][k]) == pytest.approx(
-                    float(reference[name]), abs=1e-5, rel=1e-5
-                )
-    for k, agent in enumerate(singles):
-        for (weight, bias), layer in zip(
-            stacked.policy.trunk.member_linear(k),
-            [m for m in agent.policy.trunk if isinstance(m, torch.nn.Linear)],
-        ):
-            assert torch.allclose(weight, layer.weight, atol=1e-5)
-            assert torch.allclose(bias, layer.bias, atol=1e-5)
+                    float(value[0]), abs=1e-5, rel=1e-5
+                ), name
+    for name, per_member in MODULES[agent_cls]:
+        assert_members_agree(batch, alone, name, per_member)
 
 
-def test_members_start_from_the_one_run_weights_of_their_seed():
+@pytest.mark.parametrize("agent_cls", [SACAgent, TwinQSACAgent])
+def test_a_member_starts_from_the_weights_of_its_seed(agent_cls):
+    """Member 1 of the batch of seeds (4, 9) is, weight for weight, the batch of one of
+    seed 9: its seed alone draws its networks."""
+    config = _config(agent_cls, hidden_sizes=(16, 16))
+    batch = _agent(agent_cls, config, (4, 9))
+    alone = _agent(agent_cls, config, (9,))
+    for name, per_member in MODULES[agent_cls]:
+        stacked = list(getattr(batch, name).parameters())
+        own = list(getattr(alone, name).parameters())
+        assert len(stacked) == len(own)
+        for value, reference in zip(stacked, own):
+            assert torch.equal(value[per_member : 2 * per_member], reference), name
+    if agent_cls is TwinQSACAgent:
+        assert torch.equal(batch.log_alpha[1:], alone.log_alpha)
+
+
+def test_a_member_taken_out_of_the_stack_acts_as_the_stack_does():
+    """``member_policy(k)`` is a plain tanh-Gaussian policy (what an expert file holds)
+    whose deterministic and sampled actions are member k's in the stack; taking it out
+    draws no random numbers."""
     config = SACConfig(hidden_sizes=(16, 16))
-    stacked = StackedSACAgent(_agents(SACAgent, config, seeds=(4, 9)), config, "cpu")
-    for k, seed in enumerate((4, 9)):
-        alone = _agents(SACAgent, config, seeds=(seed,))[0]
-        for (weight, bias), layer in zip(
-            stacked.policy.trunk.member_linear(k),
-            [m for m in alone.policy.trunk if isinstance(m, torch.nn.Linear)],
-        ):
-            assert torch.equal(weight, layer.weight) and torch.equal(bias, layer.bias)
-        q1 = [m for m in alone.q1.net if isinstance(m, torch.nn.Linear)]
-        for (weight, _), layer in zip(stacked.critics.member_linear(2 * k), q1):
-            assert torch.equal(weight, layer.weight)
-
-
-def test_a_member_comes_out_of_the_stack_as_its_one_run_policy():
-    config = SACConfig(hidden_sizes=(16, 16))
-    agents = _agents(SACAgent, config, seeds=(4, 9))
-    stacked = StackedSACAgent(agents, config, "cpu")
-    with torch.no_grad():  # train the stack a little, so that members differ from their start
-        for weight in stacked.policy.trunk.weights:
+    batch = _agent(SACAgent, config, (4, 9))
+    low, high = -np.ones(ACT), np.ones(ACT)
+    plain = SACNetworks.initial(0, OBS, ACT, low, high, config).policy.state_dict()
+    with torch.no_grad():  # move the members away from their initial weights
+        for weight in batch.policy.trunk.weights:
             weight.add_(0.1 * torch.randn_like(weight))
-    obs = np.random.default_rng(0).normal(size=(2, OBS)).astype(np.float32)
+    obs = torch.from_numpy(np.random.default_rng(0).normal(size=(2, OBS)).astype(np.float32))
+    noise = torch.randn(2, 1, ACT)
+    sampled, log_prob = batch.policy.sample(obs[:, None, :], noise=noise)
     state = torch.get_rng_state()
     for k in range(2):
-        alone = stacked.policy.member_policy(k)
-        assert set(alone.state_dict()) == set(agents[k].policy.state_dict())
-        acted = alone.deterministic(torch.from_numpy(obs[k : k + 1]))[0].detach().numpy()
-        np.testing.assert_allclose(acted, stacked.act_deterministic(obs)[k], atol=1e-6)
-    assert torch.equal(torch.get_rng_state(), state)  # taking a member out draws nothing
+        alone = batch.policy.member_policy(k)
+        assert type(alone) is TanhGaussianPolicy and set(alone.state_dict()) == set(plain)
+        acted = alone.deterministic(obs[k : k + 1])[0].detach().numpy()
+        np.testing.assert_allclose(acted, batch.act_deterministic(obs.numpy())[k], atol=1e-6)
+        action, density = alone.sample(obs[k : k + 1], noise=noise[k])
+        torch.testing.assert_close(action, sampled[k], atol=1e-6, rtol=1e-6)
+        torch.testing.assert_close(density, log_prob[k], atol=1e-5, rtol=1e-5)
+    assert torch.equal(torch.get_rng_state(), state)
 
 
-def test_batched_guider_decides_and_acts_as_the_one_run_guider():
+def test_the_batched_guider_decides_and_acts_as_one_state_at_a_time():
+    """N different states at once, each member with its own T2, sigma and gate: D(s) is
+    eq. 11 by brute force (``nearest_demo``, ``functional_discriminator``) state by state;
+    a guided member takes the nearest demonstration's action plus sigma times a draw of its
+    own stream, clipped, and its policy's noise stream stays still; an unguided member
+    takes its policy's sample."""
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
     low, high = np.array([-1.0]), np.array([1.0])
-    thresholds = (0.02, 0.05, 0.3)
-    configs = [DRLEGConfig(hidden_sizes=(16, 16), guide_threshold=t) for t in thresholds]
-    agent = StackedSACAgent(_mountaincar_agents(configs), configs[0], "cpu")
-    explorer = StackedGuidedExplorer(agent, configs, demos, low, high, list(SEEDS))
-    singles = [Guidance(c, demos, low, high, seed) for c, seed in zip(configs, SEEDS)]
+    points = ((0.02, 0.1), (0.05, 0.5), (0.3, 0.3))
+    configs = [
+        DRLEGConfig(hidden_sizes=(16, 16), guide_threshold=t, guide_noise_std=s) for t, s in points
+    ]
+    agent = SACAgent(list(SEEDS), MOUNTAINCAR, configs[0], cuda_graphs=False)
+    explorer = GuidedExplorer(agent, configs, demos, low, high, list(SEEDS))
+    states = np.asarray(demos.observations, dtype=np.float64)
+    draws = copy.deepcopy(explorer.rngs)  # each member's guider stream, followed alongside
     rng = np.random.default_rng(0)
-    guided_total = 0
-    for _ in range(300):
-        # near the demonstrations and far from them, the same state for every member
-        state = (
-            demos.observations[rng.integers(len(demos.observations))] + rng.normal(0, 0.05, 2)
+    counts = {True: 0, False: 0}
+    for _ in range(200):
+        # each member its own state, near the demonstrations or far from them
+        obs = (
+            states[rng.integers(len(states), size=len(SEEDS))] + rng.normal(0, 0.05, (3, 2))
         ).astype(np.float32)
-        obs = np.repeat(state[None], len(SEEDS), axis=0)
-        guided, index = explorer.decide(obs, np.ones(len(SEEDS), dtype=bool))
-        for k, single in enumerate(singles):
-            expected = single.guide(state)
-            assert guided[k] == (expected is not None)
-            if expected is not None:  # same nearest demonstration, same noise stream
-                ours = np.clip(
-                    explorer.demo_actions[index[k]]
-                    + configs[k].guide_noise_std * explorer.rngs[k].standard_normal(1),
+        gate = rng.random(len(SEEDS)) < 0.8  # a closed gate (R_demo <= R_pi) never guides
+        explorer.policy_returns = np.where(gate, -np.inf, np.inf)
+        guided, index = explorer.decide(obs, gate)
+        noise_states = [g.get_state() for g in agent.generators]
+        actions, chosen = explorer.choose(obs)
+        assert np.array_equal(chosen, guided)
+        for k, config in enumerate(configs):
+            distance, nearest = nearest_demo(states, obs[k].astype(np.float64))
+            expected = bool(gate[k]) and functional_discriminator(distance, config.guide_threshold)
+            assert guided[k] == expected
+            counts[expected] += 1
+            if expected:
+                assert np.array_equal(states[index[k]], states[nearest])
+                action = np.clip(
+                    demos.actions[nearest] + config.guide_noise_std * draws[k].standard_normal(1),
                     low,
                     high,
                 )
-                assert np.allclose(ours, expected, atol=1e-6)
-                guided_total += 1
-    assert 0 < guided_total < 300 * len(SEEDS)  # both answers occurred
-
-
-def _mountaincar_agents(configs):
-    return [
-        SACAgent(2, 1, np.array([-1.0]), np.array([1.0]), c, seed=s, cuda_graphs=False)
-        for c, s in zip(configs, SEEDS)
-    ]
+                np.testing.assert_allclose(actions[k], action, atol=1e-6)
+                assert torch.equal(agent.generators[k].get_state(), noise_states[k])
+            else:
+                assert index[k] == -1
+                stream = torch.Generator().set_state(noise_states[k])
+                noise = torch.randn((1, agent.act_dim), generator=stream)
+                action, _ = agent.policy.member_policy(k).sample(
+                    torch.from_numpy(obs[k : k + 1]), noise=noise
+                )
+                np.testing.assert_allclose(actions[k], action[0].detach().numpy(), atol=1e-6)
+    assert counts[True] > 20 and counts[False] > 20  # both answers occurred
 
 
 def test_env_batch_steps_only_active_envs_and_restores_mid_episode():
-    with EnvBatch("Hopper-v5", [3, 4], workers=1) as envs:
+    with EnvBatch(HOPPER, [3, 4], workers=1) as envs:
         obs = envs.reset(seeds=[3, 4])
         rng = np.random.default_rng(0)
         for _ in range(5):  # env 1 stands still: its rows come back empty
@@ -189,13 +214,13 @@ def test_env_batch_steps_only_active_envs_and_restores_mid_episode():
         snapshot = envs.snapshot()
         assert len(snapshot[0]["actions"]) == 5 and len(snapshot[1]["actions"]) == 0
         later = envs.step(rng.uniform(-1, 1, (2, 3))).obs
-    with EnvBatch("Hopper-v5", [3, 4], workers=0) as fresh:
+    with EnvBatch(HOPPER, [3, 4], workers=0) as fresh:
         restored = fresh.restore(snapshot)
         assert np.array_equal(restored[0], obs[0]) and np.array_equal(restored[1], obs[1])
         assert not np.array_equal(later[0], restored[0])
 
 
-def test_batched_evaluation_equals_one_run_evaluation():
+def test_each_members_evaluation_is_that_of_its_own_env():
     """Member k's episodes are those ``evaluate`` gives on its own env, whatever the
     episode lengths of the others."""
 
@@ -216,13 +241,14 @@ def _specs(algo: str = "drl-eg", steps: int = 600, seeds=(0, 1), **hyper):
     return [RunSpec(algo, MOUNTAINCAR, seed, steps, 200, 1, hyper) for seed in seeds]
 
 
-def test_batch_lands_as_runs_under_the_one_run_addresses(tmp_path):
+def test_batch_lands_as_runs_under_their_run_addresses(tmp_path):
     members = [prepare(spec) for spec in _specs()]
     outcome = execute_batch(members, tmp_path, device="cpu")
     assert [r.path.name for r in outcome.runs] == [p.run_id for p in members]
     for run in outcome.runs:
         assert run.provenance["batch"]["size"] == 2
         assert run.provenance["batch"]["members"] == [p.run_id for p in members]
+        assert run.provenance["trainer"] == "baselines.offpolicy.run_off_policy"
         assert list(run.curve["step"]) == [0, 200, 400, 600]
     assert not list(tmp_path.glob(".batch-*")) and not list(tmp_path.glob(".partial-*"))
 
@@ -245,7 +271,21 @@ def test_batched_curves_are_deterministic_and_independent_of_neighbours(tmp_path
     assert first[1].curve["returns"].tolist() == other[1].curve["returns"].tolist()
 
 
-def test_a_diverging_member_fails_alone():
+def _poison(monkeypatch, rows: slice) -> None:
+    """After every update, the critics of the member at critic rows ``rows`` turn NaN."""
+    original = SACAgent._gradient_step
+
+    def poisoned(self, batch, noise):
+        losses = original(self, batch, noise)
+        with torch.no_grad():
+            for weight in self.critics.weights:
+                weight[rows] = float("nan")
+        return losses
+
+    monkeypatch.setattr("baselines.sac.SACAgent._gradient_step", poisoned)
+
+
+def test_a_diverging_member_fails_alone(monkeypatch):
     members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1, 2))]
     failures = {}
     curves = {k: [] for k in range(3)}
@@ -253,41 +293,18 @@ def test_a_diverging_member_fails_alone():
         TrainContext(MOUNTAINCAR, p.spec.seed, 600, 200, 1, on_eval=curves[k].append)
         for k, p in enumerate(members)
     ]
-    original = StackedSACAgent._gradient_step
-
-    def poisoned(self, batch, noise):
-        losses = original(self, batch, noise)
-        with torch.no_grad():  # member 1's critics turn NaN after every update
-            for weight in self.critics.weights:
-                weight[2:4] = float("nan")
-        return losses
-
-    StackedSACAgent._gradient_step = poisoned
-    try:
-        batched_trainer("sac")(
-            BatchContext(contexts, on_member_failed=lambda k, why: failures.update({k: why})),
-            [p.config for p in members],
-        )
-    finally:
-        StackedSACAgent._gradient_step = original
+    _poison(monkeypatch, slice(2, 4))  # member 1
+    batched_trainer("sac")(
+        BatchContext(contexts, on_member_failed=lambda k, why: failures.update({k: why})),
+        [p.config for p in members],
+    )
     assert list(failures) == [1] and "diverged" in failures[1]
     assert curves[0][-1].step == 600 and curves[2][-1].step == 600
     assert all(np.isfinite(p.mean_return) for k in (0, 2) for p in curves[k])
 
 
 def test_runner_reports_a_failed_member_and_keeps_the_others(tmp_path, monkeypatch):
-    import baselines.batched as batched
-
-    original = batched.StackedSACAgent._gradient_step
-
-    def poisoned(self, batch, noise):
-        losses = original(self, batch, noise)
-        with torch.no_grad():
-            for weight in self.critics.weights:
-                weight[0:2] = float("nan")  # member 0
-        return losses
-
-    monkeypatch.setattr(batched.StackedSACAgent, "_gradient_step", poisoned)
+    _poison(monkeypatch, slice(0, 2))  # member 0
     members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1))]
     outcome = execute_batch(members, tmp_path, device="cpu")
     assert [run_id for run_id, _ in outcome.failed] == [members[0].run_id]
@@ -299,43 +316,56 @@ def test_runner_reports_a_failed_member_and_keeps_the_others(tmp_path, monkeypat
 KILL_SCRIPT = """
 import sys
 from pathlib import Path
-from replicate.runner import execute_batch, prepare
+from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 if __name__ == "__main__":
-    specs = [RunSpec("drl-eg", MOUNTAINCAR, s, 1600, 400, 1, dict(TINY)) for s in (0, 1)]
-    execute_batch([prepare(s) for s in specs], Path(sys.argv[1]), device="cpu",
-                  checkpoint_interval=300, env_workers=int(sys.argv[2]))
+    store, workers = Path(sys.argv[1]), int(sys.argv[2])
+    seeds = [int(s) for s in sys.argv[3].split(",")]
+    members = [prepare(RunSpec("drl-eg", MOUNTAINCAR, s, 1600, 400, 1, dict(TINY))) for s in seeds]
+    if len(members) == 1:  # a single run: runner.execute, a batch of one
+        execute(members[0], store, device="cpu", checkpoint_interval=300)
+    else:
+        execute_batch(members, store, device="cpu", checkpoint_interval=300, env_workers=workers)
 """
 
 
 @pytest.mark.slow
-def test_kill_9_and_resume_a_batch_ends_on_the_uninterrupted_curves(tmp_path):
-    script = tmp_path / "batch.py"
+@pytest.mark.parametrize("seeds", ["0,1", "0"], ids=["batch", "single-run"])
+def test_kill_9_and_resume_ends_on_the_uninterrupted_curves(tmp_path, seeds):
+    """A batch (its envs stepped by a worker process the second time) and a single run
+    through ``runner.execute``: killed with SIGKILL after a checkpoint, then started again,
+    they end on the curves of an uninterrupted training."""
+    script = tmp_path / "train.py"
     script.write_text(KILL_SCRIPT)
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "disable"}
+
+    def command(store: Path, workers: str) -> list[str]:
+        return [sys.executable, str(script), str(store), workers, seeds]
+
     whole = tmp_path / "whole"
-    subprocess.run(
-        [sys.executable, str(script), str(whole), "0"], check=True, env=env, cwd=ROOT, timeout=300
-    )
+    subprocess.run(command(whole, "0"), check=True, env=env, cwd=ROOT, timeout=300)
     killed = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, str(script), str(killed), "1"], env=env, cwd=ROOT)
+    proc = subprocess.Popen(command(killed, "1"), env=env, cwd=ROOT)
     deadline = time.time() + 240
     while time.time() < deadline:  # wait for a checkpoint taken mid-run
         found = list(killed.glob(".batch-*/checkpoint.pt"))
-        if found and torch.load(found[0], weights_only=False)["step"] >= 600:
-            break
+        try:
+            if found and torch.load(found[0], weights_only=False)["step"] >= 600:
+                break
+        except (EOFError, RuntimeError):  # caught while it was being written
+            pass
         time.sleep(0.2)
     else:
         pytest.fail("no checkpoint appeared")
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not list(killed.glob("drl-eg*"))  # nothing complete yet
-    subprocess.run(
-        [sys.executable, str(script), str(killed), "1"], check=True, env=env, cwd=ROOT, timeout=300
-    )
-    for name in sorted(p.name for p in whole.iterdir() if not p.name.startswith(".")):
+    subprocess.run(command(killed, "1"), check=True, env=env, cwd=ROOT, timeout=300)
+    names = sorted(p.name for p in whole.iterdir() if not p.name.startswith("."))
+    assert len(names) == len(seeds.split(","))
+    for name in names:
         a = (whole / name / "curve.csv").read_text().splitlines()
         b = (killed / name / "curve.csv").read_text().splitlines()
 
@@ -427,37 +457,29 @@ def test_a_t2_sweep_in_one_batch_gives_each_point_its_own_curve(tmp_path):
     assert guided[0] < guided[1]  # each member kept its own T2
 
 
-def test_every_batched_algorithm_trains_a_tiny_batch():
+@pytest.mark.parametrize("algo", batchable_algorithms())
+def test_every_batchable_algorithm_trains_a_tiny_batch(algo):
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
-    for algo in ("sac", "sac-twin-q", "drl-eg", "drl-eg-gmm", "drl-eg-twin-q"):
-        algorithm = get_algorithm(algo)
-        known = set(algorithm.config_cls.__dataclass_fields__)
-        config = algorithm.make_config({k: v for k, v in TINY.items() if k in known})
-        points = {0: [], 1: []}
-        contexts = [
-            TrainContext(MOUNTAINCAR, s, 300, 150, 1, demos=demos, on_eval=points[s].append)
-            for s in (0, 1)
-        ]
-        batched_trainer(algo)(BatchContext(contexts), [config, config])
-        assert [p.step for p in points[0]] == [0, 150, 300], algo
-        assert curve_signature(points[0]) != curve_signature(points[1]), algo
+    algorithm = get_algorithm(algo)
+    known = set(algorithm.config_cls.__dataclass_fields__)
+    config = algorithm.make_config({k: v for k, v in TINY.items() if k in known})
+    points = {0: [], 1: []}
+    contexts = [
+        TrainContext(MOUNTAINCAR, s, 300, 150, 1, demos=demos, on_eval=points[s].append)
+        for s in (0, 1)
+    ]
+    batched_trainer(algo)(BatchContext(contexts), [config, config])
+    assert [p.step for p in points[0]] == [0, 150, 300]
+    assert curve_signature(points[0]) != curve_signature(points[1])
 
 
-def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
+def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path, monkeypatch):
     members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1), steps=800)]
-    original = StackedSACAgent._gradient_step
-
-    def poisoned(self, batch, noise):
-        losses = original(self, batch, noise)
-        with torch.no_grad():
-            for weight in self.critics.weights:
-                weight[0:2] = float("nan")
-        return losses
 
     class Interrupted(Exception):
         pass
 
-    def run(poison: bool, stop_at: int | None) -> dict[int, str]:
+    def run(stop_at: int | None) -> dict[int, str]:
         failures: dict[int, str] = {}
         seen = [0]
 
@@ -474,17 +496,16 @@ def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path):
             checkpoint_path=tmp_path / "checkpoint.pt",
             on_member_failed=lambda k, why: failures.update({k: why}),
         )
-        StackedSACAgent._gradient_step = poisoned if poison else original
         try:
             batched_trainer("sac")(bctx, [p.config for p in members])
         except Interrupted:
             pass
-        finally:
-            StackedSACAgent._gradient_step = original
         return failures
 
-    assert list(run(poison=True, stop_at=450)) == [0]  # failed, then interrupted
-    resumed = run(poison=False, stop_at=None)
+    _poison(monkeypatch, slice(0, 2))  # member 0
+    assert list(run(stop_at=450)) == [0]  # failed, then interrupted
+    monkeypatch.undo()
+    resumed = run(stop_at=None)
     assert list(resumed) == [0] and "diverged" in resumed[0]
 
 
@@ -497,33 +518,30 @@ def test_a_batch_trains_on_the_gpu_with_graphs(tmp_path):
     assert all(r.provenance["batch"]["device"].startswith("cuda") for r in outcome.runs)
 
 
-def test_a_batch_records_the_training_returns_of_the_one_run_path(tmp_path):
-    """Before learning starts each member acts as its seed's one run does, so the training
-    episodes' returns on its curve are the one run's (Hopper: short untrained episodes)."""
+def test_a_member_records_the_training_returns_of_its_seed_alone(tmp_path):
+    """Before learning starts each member acts as its seed's batch of one does, so the
+    training episodes' returns on its curve are those of its seed alone (Hopper: short
+    untrained episodes)."""
     hyper = {**TINY, "learning_starts": 1_000}
-    specs = [RunSpec("sac", "Hopper-v5", seed, 400, 200, 1, hyper) for seed in (0, 1)]
+    specs = [RunSpec("sac", HOPPER, seed, 400, 200, 1, hyper) for seed in (0, 1)]
     runs = execute_batch([prepare(s) for s in specs], tmp_path, device="cpu").runs
     for seed, run in zip((0, 1), runs):
-        points, _ = train_tiny(
-            "sac", seed=seed, steps=400, env_id="Hopper-v5", learning_starts=1_000
-        )
-        one_run = [p.train_return for p in points]
-        assert np.isnan(one_run[0]) and np.isfinite(one_run[1:]).all()
-        np.testing.assert_allclose(run.curve["train_return"], one_run, rtol=1e-5)
+        points, _ = train_tiny("sac", seed=seed, steps=400, env_id=HOPPER, learning_starts=1_000)
+        alone = [p.train_return for p in points]
+        assert np.isnan(alone[0]) and np.isfinite(alone[1:]).all()
+        np.testing.assert_allclose(run.curve["train_return"], alone, rtol=1e-5)
 
 
-@pytest.mark.parametrize("twin_q", [False, True])
-def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
+@pytest.mark.parametrize("agent_cls", [SACAgent, TwinQSACAgent])
+def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(agent_cls):
     """Bitwise, weights and Adam moments, also after a checkpoint round trip: on the CPU
     neither the products nor Adam may round a member's numbers by how many members are
     stacked (the fused Adam's scalar tail did, on AVX2)."""
-    config = (TwinQSACConfig if twin_q else SACConfig)(hidden_sizes=(32, 32), batch_size=ROWS)
-    agent_cls, stack_cls = (
-        (TwinQSACAgent, StackedTwinQAgent) if twin_q else (SACAgent, StackedSACAgent)
-    )
+    twin_q = agent_cls is TwinQSACAgent
+    config = _config(agent_cls)
 
     def stack(seeds):  # the policy's output bias: 2 * ACT floats per member, short of a vector
-        return stack_cls(_agents(agent_cls, config, seeds), config, "cpu")
+        return _agent(agent_cls, config, seeds)
 
     small, large = stack((0, 1)), stack((0, 1) * 4)
     generator = torch.Generator().manual_seed(7)
@@ -532,13 +550,7 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
             resumed = stack((0, 1) * 4)
             load_agent_state(resumed, agent_state(large))
             large = resumed
-        batch = Batch(
-            torch.randn(2, ROWS, OBS, generator=generator),
-            torch.rand(2, ROWS, ACT, generator=generator) * 2 - 1,
-            torch.randn(2, ROWS, generator=generator),
-            torch.randn(2, ROWS, OBS, generator=generator),
-            (torch.rand(2, ROWS, generator=generator) < 0.2).float(),
-        )
+        batch = _minibatches(generator, n=2)
         noises = [torch.randn(2, ROWS, ACT, generator=generator) for _ in range(2 if twin_q else 1)]
         repeated = Batch(*[t.repeat(4, *[1] * (t.dim() - 1)) for t in vars(batch).values()])
         if twin_q:
@@ -566,9 +578,8 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(twin_q):
 
 
 def test_a_batch_checkpoint_from_before_the_two_adam_groups_says_how_to_start_over():
-    config = SACConfig(hidden_sizes=(16, 16))
-    stacked = StackedSACAgent(_agents(SACAgent, config, seeds=(0, 1)), config, "cpu")
-    state = agent_state(stacked)
-    state["v_optimizer"] = torch.optim.Adam(stacked.v.parameters(), fused=True).state_dict()
+    batch = _agent(SACAgent, SACConfig(hidden_sizes=(16, 16)), (0, 1))
+    state = agent_state(batch)
+    state["v_optimizer"] = torch.optim.Adam(batch.v.parameters(), fused=True).state_dict()
     with pytest.raises(ValueError, match=r"predates .* delete the batch's checkpoint"):
-        load_agent_state(stacked, state)
+        load_agent_state(batch, state)

@@ -1,4 +1,5 @@
-"""Seed-batched RLPD: each member trains as its one-run RLPD would, beside the others."""
+"""RLPD on the off-policy trainer: member k of a batch samples, updates and trains as the
+batch of one of its seed does, beside the others."""
 
 from __future__ import annotations
 
@@ -6,115 +7,93 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.batched import StackedRLPDAgent
-from baselines.common.stacked import StackedSymmetricReplay
 from baselines.ibrl import preloaded_buffer
-from baselines.rlpd import RLPDAgent, RLPDConfig, SymmetricReplay
+from baselines.rlpd import RLPDAgent, RLPDConfig
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
 from tests.helpers import (
     MOUNTAINCAR,
     TINY,
-    assert_batch_policies_agree,
     assert_batch_updates_agree,
+    assert_members_agree,
     batch_curves,
+    fill_replays,
 )
 
 OBS, ACT, ROWS, SEEDS, CAPACITY = 2, 1, 32, (0, 1, 2), 200
-LOW, HIGH = -np.ones(ACT), np.ones(ACT)
 
 
-def _demos():
-    return load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """Agents updated here directly run on one thread, as training sets it (torch_threads)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
-def _transitions(rng: np.random.Generator, n: int):
-    return (
-        rng.normal(size=(n, OBS)).astype(np.float32),
-        rng.uniform(-1, 1, size=(n, ACT)).astype(np.float32),
-        rng.normal(size=n).astype(np.float32),
-        rng.normal(size=(n, OBS)).astype(np.float32),
-        rng.random(n) < 0.1,
-    )
+def _agents(**overrides):
+    """A batch of 3 and the batch of one of each of its seeds, their replays holding the
+    demonstrations and the same online transitions."""
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    config = RLPDConfig(hidden_sizes=(32, 32), batch_size=ROWS, **overrides)
+    demo_buffer = preloaded_buffer(demos, OBS, ACT, online_capacity=0)
+
+    def agent(seeds):
+        return RLPDAgent(list(seeds), MOUNTAINCAR, config, demo_buffer, cuda_graphs=False)
+
+    batch, alone = agent(SEEDS), [agent([s]) for s in SEEDS]
+    fill_replays(batch, alone, CAPACITY)
+    return demos, config, batch, alone
 
 
-def _filled(demos, steps: int = 60):
-    """The stacked replay and each member's one-run replay, holding the same transitions."""
-    stacked = StackedSymmetricReplay(
-        preloaded_buffer(demos, OBS, ACT, online_capacity=0),
-        len(SEEDS),
-        OBS,
-        ACT,
-        CAPACITY,
-        torch.device("cpu"),
-    )
-    singles = [SymmetricReplay(demos, OBS, ACT, CAPACITY) for _ in SEEDS]
-    rng = np.random.default_rng(3)
-    for _ in range(steps):
-        obs, act, rew, nxt, term = _transitions(rng, len(SEEDS))
-        stacked.add(obs, act, rew, nxt, term)
-        for k, buffer in enumerate(singles):
-            buffer.add(obs[k], act[k], float(rew[k]), nxt[k], bool(term[k]))
-    return stacked, singles
-
-
-def test_stacked_symmetric_sample_draws_each_members_one_run_rows():
-    stacked, singles = _filled(_demos())
-    batch = stacked.sample(ROWS, [np.random.default_rng(s) for s in SEEDS])
-    for k, (buffer, seed) in enumerate(zip(singles, SEEDS)):
-        one = buffer.sample(ROWS, np.random.default_rng(seed))
+def test_a_members_symmetric_sample_is_that_of_its_seed_alone():
+    """Member k's minibatch is the one its batch of one draws from a generator of its seed:
+    half demonstration rows, first, then half its own online rows."""
+    demos, _, batch, alone = _agents()
+    sample = batch.buffer.sample(ROWS, [np.random.default_rng(s) for s in SEEDS])
+    online = batch.buffer.split(batch.buffer.data[:, : batch.buffer.size])
+    demo_obs = torch.from_numpy(np.asarray(demos.observations, dtype=np.float32))
+    for k, (agent, seed) in enumerate(zip(alone, SEEDS)):
+        one = agent.buffer.sample(ROWS, [np.random.default_rng(seed)])
         for name in ("observations", "actions", "rewards", "next_observations", "terminated"):
-            assert torch.equal(getattr(batch, name)[k], getattr(one, name)), name
-    demo_obs = torch.from_numpy(np.asarray(_demos().observations, dtype=np.float32))
-    first_half = batch.observations[:, : ROWS // 2]  # the demonstration half comes first
-    assert all(bool((demo_obs == row).all(-1).any()) for row in first_half.reshape(-1, OBS))
+            assert torch.equal(getattr(sample, name)[k], getattr(one, name)[0]), name
+        first, second = sample.observations[k, : ROWS // 2], sample.observations[k, ROWS // 2 :]
+        assert all(bool((demo_obs == row).all(-1).any()) for row in first)
+        assert all(bool((online.observations[k] == row).all(-1).any()) for row in second)
 
 
 @pytest.mark.parametrize("utd", [1, 2])
-def test_batched_rlpd_updates_equal_one_run_updates(utd):
-    """Six updates of a batch of 3 (its own replay rows, noise and critic subsets drawn in
-    each member's one-run order) against the one-run agents: losses, then weights, within
-    1e-5; with utd 2 every other update is critic-only in both."""
-    demos = _demos()
-    config = RLPDConfig(hidden_sizes=(32, 32), batch_size=ROWS, utd=utd)
-    singles = [RLPDAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS]
-    stacked = StackedRLPDAgent(
-        [RLPDAgent(OBS, ACT, LOW, HIGH, config, seed=s, cuda_graphs=False) for s in SEEDS],
-        config,
-        preloaded_buffer(demos, OBS, ACT, online_capacity=0),
-        "cpu",
-    )
-    stacked.buffer, buffers = _filled(demos)
-    assert_batch_updates_agree(stacked, singles, buffers, ROWS, SEEDS, updates=6)
-    assert stacked.critic_updates == 6
-    assert_batch_policies_agree(stacked, singles)
-    for k, agent in enumerate(singles):
-        rows = slice(k * config.num_qs, (k + 1) * config.num_qs)
-        for mine, theirs in (
-            (stacked.critics, agent.critics),
-            (stacked.critics_target, agent.critics_target),
-        ):
-            named = dict(theirs.named_parameters())  # the target's LayerNorm too
-            assert len(named) == len(list(mine.parameters()))
-            for name, value in mine.named_parameters():
-                assert torch.allclose(value[rows], named[name], atol=1e-6), name
-        assert torch.allclose(stacked.log_alpha[k], agent.log_alpha[0], atol=1e-6)
+def test_a_batched_rlpd_update_equals_each_members_update_alone(utd):
+    """Six updates of a batch of 3 (its replay rows, noise and critic subsets drawn from
+    each member's own streams) against the batches of one of its seeds: losses, then
+    weights (the target critics' LayerNorm too) and temperatures, within 1e-5; with utd 2
+    every other update is critic-only in both."""
+    _, config, batch, alone = _agents(utd=utd)
+    assert_batch_updates_agree(batch, alone, SEEDS, updates=6)
+    assert batch.critic_updates == 6 and all(a.critic_updates == 6 for a in alone)
+    assert_members_agree(batch, alone, "policy")
+    for name in ("critics", "critics_target"):
+        assert_members_agree(batch, alone, name, per_member=config.num_qs, atol=1e-6)
 
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
     return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper}) for seed in seeds]
 
 
-def test_a_batched_rlpd_run_lands_on_its_one_run_curve(tmp_path):
-    """Seed 1 trained in a batch beside seed 0 and alone: the same address and, on CPU,
-    the same evaluation returns (to the printed digits)."""
+def test_an_rlpd_member_lands_on_the_curve_of_its_single_run(tmp_path):
+    """Seed 1 trained in a batch beside seed 0 and as a single run (``runner.execute``, a
+    batch of one): the same address and, to rounding, the same evaluation and training
+    returns (a batch of one does not round every product as a member of a batch of two
+    does)."""
     batch = execute_batch([prepare(s) for s in _specs()], tmp_path / "batch", device="cpu")
     alone = execute(prepare(_specs(seeds=(1,))[0]), tmp_path / "alone", device="cpu")
     assert not batch.failed and batch.runs[1].path.name == alone.path.name
-    np.testing.assert_allclose(
-        batch.runs[1].curve["return_mean"], alone.curve["return_mean"], rtol=1e-4, atol=1e-3
-    )
+    for column in ("return_mean", "train_return"):  # NaN where none
+        np.testing.assert_allclose(
+            batch.runs[1].curve[column], alone.curve[column], rtol=1e-4, atol=1e-3, err_msg=column
+        )
     assert batch.runs[0].curve["returns"].tolist() != batch.runs[1].curve["returns"].tolist()
 
 
