@@ -92,6 +92,8 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/bench.py", *session.posargs, env=env)
     # the seed-batched trainer: CPU sections (SAC; IBRL and RLPD) here
     session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", env=env)
+    # the trainer's stacked networks against torch.vmap over ordinary modules, one V-SAC step
+    session.run("python", "benchmarks/stacked_vs_vmap.py", env=env)
     session.run(
         "python",
         "-c",

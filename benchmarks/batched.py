@@ -1,8 +1,14 @@
-"""Seed-batched training against one run per process (``baselines.batched``).
+"""Seed batches of the off-policy trainer (``baselines.offpolicy``) against one run.
 
-CPU section (``--cpu``): on this machine's cores, N = 1, 2, 4, 8 members of V-SAC on Hopper-v5
-in one process per core against one run per process, env steps per second summed over the
-machine; and one V-SAC update in fp32 against bf16 autocast.
+There is one trainer: a run trained alone is a seed batch of one (the registry's
+``Algorithm.train``), so every comparison here is the same trainer at N members against
+N = 1, in the same bench run.
+
+CPU section (``--cpu``): on this machine's cores, one process per core, each training
+N = 2, 4, 8 members of V-SAC on Hopper-v5, against one run per process; env steps per
+second summed over the machine. N = 1 is measured too, through ``train_batch`` rather than
+``train``: the same code, so its ratio to one run is the bench's own noise. Then one V-SAC
+update in fp32 against bf16 autocast and bf16 products.
 
 RLFD CPU section (``--rlfd-cpu``): IBRL and RLPD on the sparse cartpole, a batch of 5 seeds
 in one process against one run, on one thread each.
@@ -10,14 +16,16 @@ in one process against one run, on one thread each.
 GPU section (``--gpu``): N = 8, 16, 32, 64 members of V-SAC and DRL-EG on Hopper-v5 and
 Ant-v5 (paper hyperparameters, batch 256 per member, one gradient step per env step), env
 steps per second summed over the members, the GPU memory, where a batched step's time goes,
-the one-run GPU path beside it, and the projected wall time of ``--profile paper`` Fig. 3
-and Fig. 4 from the measured rates.
+one run (a batch of one) on the GPU beside it, and the projected wall time of
+``--profile paper`` Fig. 3 and Fig. 4 from the measured rates.
 
-Each measurement trains from scratch: ``WARMUP`` steps from the initial policy, then
-``--steps`` timed steps with updates. Results go to ``--out`` as JSON, written after each
-measurement so that a cut-off run keeps what it finished.
+Each measurement trains from scratch: ``--warmup`` steps from the initial policy (the
+harness's ``learning_starts``, 1000), then ``--steps`` timed steps with updates. Results go
+to ``--out`` as JSON, written after each measurement so that a cut-off run keeps what it
+finished.
 
     python benchmarks/batched.py --cpu
+    python benchmarks/batched.py --cpu --processes 1 --steps 20 --warmup 20   # a smoke run
     python benchmarks/batched.py --update-precision --out reports/bench/bf16_products.json
     python benchmarks/batched.py --rlfd-cpu --out reports/bench/batched_rlfd_cpu.json
     python benchmarks/batched.py --gpu --out reports/bench/batched_gpu.json
@@ -40,13 +48,14 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.batched import BatchContext, run_stacked_off_policy, stacked_agent, stacked_explorer  # noqa: E402
-from baselines.common.context import TrainContext  # noqa: E402
+from baselines.common.context import BatchContext, TrainContext  # noqa: E402
 from baselines.common.stacked import StackedReplay  # noqa: E402
+from baselines.offpolicy import seed_device_stream  # noqa: E402
 from baselines.registry import batched_trainer, get_algorithm  # noqa: E402
+from baselines.sac import SACAgent  # noqa: E402
 from envs import env_spec  # noqa: E402
 
-WARMUP = 1000  # env steps before the first update, as in the harness's SAC
+WARMUP = 1000  # env steps before the first update (the default; --warmup)
 HUGE = 10**9  # an evaluation interval no bench run reaches
 
 
@@ -89,14 +98,17 @@ def batched_rate(
     device: str,
     env_workers: int,
     guide_threshold: float | None = None,
+    warmup: int = WARMUP,
 ) -> dict:
-    """Train ``members`` seeds of ``algo`` for WARMUP + ``steps`` steps; summed env steps/s
-    over the timed steps."""
+    """Train ``members`` seeds of ``algo`` through its registered batch trainer for
+    ``warmup`` + ``steps`` steps; summed env steps/s over the timed steps."""
     algorithm = get_algorithm(algo)
-    overrides = {} if guide_threshold is None else {"guide_threshold": guide_threshold}
+    overrides: dict = {"learning_starts": warmup}
+    if guide_threshold is not None:
+        overrides["guide_threshold"] = guide_threshold
     configs = [algorithm.make_config(overrides) for _ in range(members)]
     demos = demos_of(env_id) if algorithm.needs_demos else None
-    total = WARMUP + steps
+    total = warmup + steps
     contexts = [
         TrainContext(
             env_id=env_id,
@@ -108,14 +120,12 @@ def batched_rate(
         )
         for seed in range(members)
     ]
-    clock = StepClock(members, WARMUP, total)
+    clock = StepClock(members, warmup, total)
     bctx = BatchContext(contexts, device=device, env_workers=env_workers, on_steps=clock)
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
-    agent = stacked_agent(bctx, configs, twin_q=False)
-    explorer = stacked_explorer(bctx, agent, configs, guided=algorithm.needs_demos)
     started = time.perf_counter()
-    run_stacked_off_policy(bctx, agent, explorer)
+    algorithm.train_batch(bctx, configs)
     ended = time.perf_counter()
     result = {
         "algo": algo,
@@ -132,22 +142,23 @@ def batched_rate(
     return result
 
 
-def one_run_rate(algo: str, env_id: str, steps: int, device: str) -> dict:
-    """The one-run path (``baselines.sac.run_off_policy``) for comparison."""
+def one_run_rate(algo: str, env_id: str, steps: int, device: str, warmup: int = WARMUP) -> dict:
+    """One run as the runner trains it alone (``Algorithm.train``: a seed batch of one), the
+    reference the batches are compared with."""
     algorithm = get_algorithm(algo)
     demos = demos_of(env_id) if algorithm.needs_demos else None
-    clock = StepClock(1, WARMUP, WARMUP + steps)
+    clock = StepClock(1, warmup, warmup + steps)
     ctx = TrainContext(
         env_id=env_id,
         seed=0,
-        total_steps=WARMUP + steps,
+        total_steps=warmup + steps,
         eval_interval=HUGE,
         eval_episodes=1,
         demos=demos,
         on_steps=clock,
         device=device,
     )
-    algorithm.train(ctx, algorithm.make_config({}))
+    algorithm.train(ctx, algorithm.make_config({"learning_starts": warmup}))
     return {
         "algo": algo,
         "env": env_id,
@@ -224,14 +235,14 @@ def step_time_split(
     synchronised: the policy's action, the env step, the replay write, the update."""
     from envs.vector import EnvBatch
 
-    algorithm = get_algorithm("sac")
-    configs = [algorithm.make_config({}) for _ in range(members)]
+    config = get_algorithm("sac").make_config({})
     contexts = [
         TrainContext(env_id=env_id, seed=s, total_steps=10**6, eval_interval=HUGE, eval_episodes=1)
         for s in range(members)
     ]
     bctx = BatchContext(contexts, device=device, env_workers=env_workers)
-    agent = stacked_agent(bctx, configs, twin_q=False)
+    agent = SACAgent(bctx.seeds, env_id, config, device, bctx.cuda_graphs)
+    seed_device_stream(bctx)
     spec = env_spec(env_id)
     agent.buffer = StackedReplay(members, spec.obs_dim, spec.act_dim, 10_000, agent.device)
     rngs = [np.random.default_rng(s) for s in range(members)]
@@ -276,19 +287,7 @@ def update_precision(calls: int = 50) -> dict[str, float]:
     default_precision = matmul.fp32_precision
     out = {}
     for members in (1, 3):
-        contexts = [
-            TrainContext(
-                env_id="Hopper-v5",
-                seed=seed,
-                total_steps=10**6,
-                eval_interval=HUGE,
-                eval_episodes=1,
-            )
-            for seed in range(members)
-        ]
-        agent = stacked_agent(
-            BatchContext(contexts), [get_algorithm("sac").make_config({})] * members, twin_q=False
-        )
+        agent = SACAgent(list(range(members)), "Hopper-v5", get_algorithm("sac").make_config({}))
         g = torch.Generator().manual_seed(0)
         batch = Batch(
             torch.randn(members, 256, 11, generator=g),
@@ -321,14 +320,16 @@ def update_precision(calls: int = 50) -> dict[str, float]:
     return out
 
 
-def registered_batch_rate(algo: str, env_id: str, members: int, steps: int) -> float:
+def registered_batch_rate(
+    algo: str, env_id: str, members: int, steps: int, warmup: int = WARMUP
+) -> float:
     """``members`` seeds of ``algo`` through its registered batched trainer on one CPU
     thread: summed env steps/s over the timed steps."""
     torch.set_num_threads(1)
     algorithm = get_algorithm(algo)
-    configs = [algorithm.make_config({}) for _ in range(members)]
+    configs = [algorithm.make_config({"learning_starts": warmup}) for _ in range(members)]
     demos = demos_of(env_id) if algorithm.needs_demos else None
-    total = WARMUP + steps
+    total = warmup + steps
     contexts = [
         TrainContext(
             env_id=env_id,
@@ -340,7 +341,7 @@ def registered_batch_rate(algo: str, env_id: str, members: int, steps: int) -> f
         )
         for seed in range(members)
     ]
-    clock = StepClock(members, WARMUP, total)
+    clock = StepClock(members, warmup, total)
     batched_trainer(algo)(BatchContext(contexts, on_steps=clock), configs)
     return clock.rate()
 
@@ -348,15 +349,15 @@ def registered_batch_rate(algo: str, env_id: str, members: int, steps: int) -> f
 RLFD_CPU_ENV = "dm_control/cartpole-swingup_sparse-v0"
 
 
-def rlfd_cpu_section(steps: int, write) -> None:
+def rlfd_cpu_section(steps: int, write, warmup: int = WARMUP) -> None:
     """IBRL and RLPD (the comparison's learners with a batched trainer beside SAC and
-    DRL-EG) on one thread: a batch of 5, the comparison's seeds, against one run, env steps/s
-    summed over the members."""
+    DRL-EG) on one thread: a batch of 5, the comparison's seeds, against one run (a batch
+    of one), env steps/s summed over the members."""
     for algo in ("ibrl", "rlpd"):
         torch.set_num_threads(1)
-        one = one_run_rate(algo, RLFD_CPU_ENV, steps, "cpu")["env_steps_per_s"]
+        one = one_run_rate(algo, RLFD_CPU_ENV, steps, "cpu", warmup)["env_steps_per_s"]
         write("rlfd cpu", {f"{algo} one run": round(one, 1)})
-        rate = registered_batch_rate(algo, RLFD_CPU_ENV, 5, steps)
+        rate = registered_batch_rate(algo, RLFD_CPU_ENV, 5, steps, warmup)
         write(
             "rlfd cpu",
             {
@@ -366,26 +367,32 @@ def rlfd_cpu_section(steps: int, write) -> None:
         )
 
 
-def _cpu_process(job: tuple[int, int]) -> float:
-    members, steps = job
+def _cpu_process(job: tuple[int, int, int]) -> float:
+    members, steps, warmup = job
     torch.set_num_threads(1)
-    return batched_rate("sac", "Hopper-v5", members, steps, "cpu", 0)["env_steps_per_s"]
+    return batched_rate("sac", "Hopper-v5", members, steps, "cpu", 0, warmup=warmup)[
+        "env_steps_per_s"
+    ]
 
 
-def _cpu_one_run(steps: int) -> float:
+def _cpu_one_run(job: tuple[int, int]) -> float:
+    steps, warmup = job
     torch.set_num_threads(1)
-    return one_run_rate("sac", "Hopper-v5", steps, "cpu")["env_steps_per_s"]
+    return one_run_rate("sac", "Hopper-v5", steps, "cpu", warmup)["env_steps_per_s"]
 
 
-def cpu_section(steps: int, write) -> None:
-    """Per machine: one process per core, each a batch of N, against one run per process."""
-    cores = os.cpu_count() or 1
+def cpu_section(steps: int, write, warmup: int = WARMUP, processes: int | None = None) -> None:
+    """Per machine: one process per core (or ``processes``), each a batch of N, against one
+    run per process. N = 1 is the one run again, through ``train_batch``: its ratio is the
+    bench's noise."""
+    cores = processes or os.cpu_count() or 1
     ctx = mp.get_context("spawn")
     with ctx.Pool(cores) as pool:
-        one = sum(pool.map(_cpu_one_run, [steps] * cores))
+        one = sum(pool.map(_cpu_one_run, [(steps, warmup)] * cores))
         write("cpu", {"machine one run per process": round(one, 1)})
         for members in (1, 2, 4, 8):
-            rate = sum(pool.map(_cpu_process, [(members, max(200, steps // members))] * cores))
+            timed = max(min(steps, 200), steps // members)
+            rate = sum(pool.map(_cpu_process, [(members, timed, warmup)] * cores))
             write(
                 "cpu",
                 {
@@ -400,7 +407,7 @@ def cpu_section(steps: int, write) -> None:
 PAPER_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
 
 
-def gpu_section(steps: int, write, env_workers: int) -> None:
+def gpu_section(steps: int, write, env_workers: int, warmup: int = WARMUP) -> None:
     rates: dict[tuple[str, str, int], float] = {}
     for env_id in ("Hopper-v5", "Ant-v5"):
         spec = env_spec(env_id)
@@ -410,7 +417,9 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
         for algo in ("sac", "drl-eg"):
             for members in sizes:
                 try:
-                    result = batched_rate(algo, env_id, members, steps, "cuda", env_workers)
+                    result = batched_rate(
+                        algo, env_id, members, steps, "cuda", env_workers, warmup=warmup
+                    )
                 except Exception:
                     write("gpu_errors", {f"{algo} {env_id} N={members}": traceback.format_exc()})
                     continue
@@ -418,7 +427,8 @@ def gpu_section(steps: int, write, env_workers: int) -> None:
                 write("gpu_batched", {f"{algo} {env_id} N={members}": result})
     for env_id in ("Hopper-v5", "Ant-v5"):
         try:
-            write("gpu_one_run", {f"sac {env_id}": one_run_rate("sac", env_id, steps, "cuda")})
+            one = one_run_rate("sac", env_id, steps, "cuda", warmup)
+            write("gpu_one_run", {f"sac {env_id}": one})
         except Exception:
             write("gpu_errors", {f"one run {env_id}": traceback.format_exc()})
     try:
@@ -472,6 +482,15 @@ def main() -> None:
     parser.add_argument(
         "--steps", type=int, default=1000, help="timed env steps per member after the warm-up"
     )
+    parser.add_argument(
+        "--warmup",
+        type=int,
+        default=WARMUP,
+        help="env steps from the initial policy before the first update (learning_starts)",
+    )
+    parser.add_argument(
+        "--processes", type=int, default=None, help="CPU section: processes (default: one per core)"
+    )
     parser.add_argument("--env-workers", type=int, default=max(0, (os.cpu_count() or 1) - 2))
     parser.add_argument("--out", type=Path, default=Path("reports/bench/batched.json"))
     args = parser.parse_args()
@@ -484,6 +503,7 @@ def main() -> None:
         },
         "command": " ".join(sys.argv),
         "steps": args.steps,
+        "warmup": args.warmup,
     }
 
     def write(section: str, values: dict) -> None:
@@ -492,12 +512,14 @@ def main() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1) + "\n")
 
+    if args.steps < 3 or args.warmup < 1:
+        parser.error("--steps must be >= 3 and --warmup >= 1")
     if args.gpu:
-        gpu_section(args.steps, write, args.env_workers)
+        gpu_section(args.steps, write, args.env_workers, args.warmup)
     if args.rlfd_cpu:
-        rlfd_cpu_section(args.steps, write)
+        rlfd_cpu_section(args.steps, write, args.warmup)
     if args.cpu:
-        cpu_section(args.steps, write)
+        cpu_section(args.steps, write, args.warmup, args.processes)
     elif args.update_precision:
         write("cpu", {"update ms": update_precision()})
 

@@ -146,25 +146,32 @@ def make_harness_update(
     algo: str = "sac", device: str = "cpu", cuda_graphs: bool = True
 ) -> Callable[[], None]:
     """One update of the harness's SAC (``sac``: the paper's V-network version, or
-    ``sac-twin-q``) on a filled buffer. On CUDA the call waits for the GPU to finish."""
-    from baselines.common.buffer import ReplayBuffer
+    ``sac-twin-q``) for one run (a seed batch of one, as the runner trains a run alone) on a
+    filled replay, its minibatch sampled as in training. On CUDA the call waits for the GPU
+    to finish."""
     from baselines.sac import SACAgent, SACConfig
     from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 
     agent_cls, config = (
         (SACAgent, SACConfig()) if algo == "sac" else (TwinQSACAgent, TwinQSACConfig())
     )
-    agent = agent_cls(
-        11, 3, -np.ones(3), np.ones(3), config, seed=0, device=device, cuda_graphs=cuda_graphs
-    )
-    buffer, rng = ReplayBuffer(11, 3, 10_000), np.random.default_rng(0)
+    agent = agent_cls([0], ENV_ID, config, device=device, cuda_graphs=cuda_graphs)
+    agent.buffer = agent.make_replay(1, 11, 10_000)
+    rng = np.random.default_rng(0)
     for _ in range(5000):
-        buffer.add(rng.normal(size=11), rng.uniform(-1, 1, 3), 1.0, rng.normal(size=11), False)
+        agent.buffer.add(
+            rng.normal(size=(1, 11)),
+            rng.uniform(-1, 1, (1, 3)),
+            np.ones(1),
+            rng.normal(size=(1, 11)),
+            np.zeros(1),
+        )
+    rngs = [rng]
     if device == "cpu":
-        return lambda: agent.update(buffer.sample(256, rng))
+        return lambda: agent.update(rngs)
 
     def update_and_wait() -> None:
-        agent.update(buffer.sample(256, rng))
+        agent.update(rngs)
         torch.cuda.synchronize()
 
     return update_and_wait
@@ -258,14 +265,14 @@ def ppo_time_split(steps: int = 4096) -> dict[str, float]:
 
 def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, float]:
     """Where a harness SAC run's time goes: shares of its wall time, from timers wrapped
-    around the env step, the policy's action, the replay buffer and the gradient step (on a
-    GPU the gradient step is waited for, so that its GPU time is not billed to the next
-    action, which would wait for it anyway)."""
-    from baselines.common.buffer import ReplayBuffer
+    around the env step, the policy's action, the replay and the gradient step (on a GPU the
+    gradient step is waited for, so that its GPU time is not billed to the next action,
+    which would wait for it anyway). Each timer counts its own time only: on CPU the
+    replay's sampling, called inside the update, is billed to the replay."""
     from baselines.common.context import TrainContext
+    from baselines.common.stacked import StackedReplay
+    from baselines.offpolicy import OffPolicyAgent
     from baselines.registry import get_algorithm
-    from baselines.sac import PolicyActor, SACAgent
-    from baselines.sac_twin_q import TwinQSACAgent
     from envs import FlatFloat32Env
 
     seconds = {
@@ -275,26 +282,34 @@ def sac_time_split(algo: str, steps: int, device: str = "cpu") -> dict[str, floa
         "gradient steps": 0.0,
     }
 
+    nested: list[float] = []  # per timer running, the time of the timers inside it
+
     def timed(owner: type, method: str, part: str, wait: bool = False):
-        original = getattr(owner, method)
+        original = owner.__dict__[method]
 
         def wrapper(*args, **kwargs):
+            nested.append(0.0)
             start = time.perf_counter()
-            result = original(*args, **kwargs)
-            if wait and device == "cuda":
-                torch.cuda.synchronize()
-            seconds[part] += time.perf_counter() - start
+            try:
+                result = original(*args, **kwargs)
+                if wait and device == "cuda":
+                    torch.cuda.synchronize()
+            finally:
+                elapsed = time.perf_counter() - start
+                inner = nested.pop()
+                seconds[part] += elapsed - inner
+                if nested:
+                    nested[-1] += elapsed
             return result
 
         return original, wrapper
 
     patches = [
         (FlatFloat32Env, "step", "env step (MuJoCo and wrappers)", False),
-        (PolicyActor, "act", "policy action per env step", False),
-        (ReplayBuffer, "add", "replay add and sample", False),
-        (ReplayBuffer, "sample", "replay add and sample", False),
-        (SACAgent, "update", "gradient steps", True),
-        (TwinQSACAgent, "update", "gradient steps", True),
+        (OffPolicyAgent, "act", "policy action per env step", False),
+        (StackedReplay, "add", "replay add and sample", False),
+        (StackedReplay, "sample", "replay add and sample", False),
+        (OffPolicyAgent, "update", "gradient steps", True),
     ]
     originals = []
     for owner, method, part, wait in patches:
@@ -372,22 +387,22 @@ def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[st
     """What DRL-EG adds to an env step: its explorer's choice against SAC's policy action,
     timed on the same states (those an untrained SAC agent visits, early training's case),
     with the gate open. Returns microseconds per step and the seconds the index takes to build."""
-    from baselines.drl_eg import DRLEGConfig, Guidance, GuidedExplorer
+    from baselines.drl_eg import DRLEGConfig, GuidedExplorer
     from baselines.sac import SACAgent
     from envs import make_env
 
-    demos = hopper_demos(n_pairs)
+    demos = hopper_demos(n_pairs)  # their mean return is huge: the gate stays open
     config = DRLEGConfig(guide_threshold=threshold)
-    agent = SACAgent(11, 3, -np.ones(3), np.ones(3), config, seed=0)
+    agent = SACAgent([0], ENV_ID, config)  # one run: a seed batch of one
+    low, high = -np.ones(3), np.ones(3)
     start = time.perf_counter()
-    guidance = Guidance(config, demos, -np.ones(3), np.ones(3), seed=0)
+    explorer = GuidedExplorer(agent, [config], demos, low, high, [0])  # builds the KD-tree
     build_s = time.perf_counter() - start
-    explorer = GuidedExplorer(agent, guidance, demo_return=1e9)
     env, visited = make_env(ENV_ID, seed=0), []
     obs, _ = env.reset(seed=0)
     for _ in range(states):
-        visited.append(obs)
-        obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+        visited.append(obs[None])  # one member's row
+        obs, _, terminated, truncated, _ = env.step(agent.act(obs[None])[0])
         if terminated or truncated:
             obs, _ = env.reset()
     guided = 0
@@ -399,7 +414,7 @@ def guidance_cost(n_pairs: int, threshold: float, states: int = 3000) -> dict[st
         times["act"].append(time.perf_counter() - start)
         start = time.perf_counter()
         for state in visited:
-            guided += explorer.choose(state)[1]
+            guided += int(explorer.choose(state)[1][0])
         times["choose"].append(time.perf_counter() - start)
     act_us, choose_us = (1e6 * min(times[k]) / len(visited) for k in ("act", "choose"))
     return {
@@ -888,7 +903,7 @@ def main() -> None:
         (
             "DRL-EG step / SAC step, 1000 demos, guided always",
             guidance_ratio("1k", "always"),
-            "(guided steps skip the policy)",
+            "(D(s) and G(s) on every step; the policy still runs)",
         ),
         (
             "DRL-EG step / SAC step, 1M demos, guided always",

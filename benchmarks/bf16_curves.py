@@ -21,9 +21,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from baselines.batched import BatchContext, StackedExplorer, run_stacked_off_policy, stacked_agent  # noqa: E402
-from baselines.common.context import TrainContext  # noqa: E402
+from baselines.common.context import BatchContext, TrainContext  # noqa: E402
+from baselines.common.device import flush_denormals  # noqa: E402
+from baselines.offpolicy import PolicyExplorer, run_off_policy  # noqa: E402
 from baselines.registry import get_algorithm  # noqa: E402
+from baselines.sac import SACAgent  # noqa: E402
 
 SEEDS, STEPS, INTERVAL, EPISODES = (0, 1, 2), 50_000, 5_000, 5
 
@@ -44,10 +46,11 @@ def train(precision: str) -> dict:
     ]
     bctx = BatchContext(contexts)
     config = get_algorithm("sac").make_config({})
-    agent = stacked_agent(bctx, [config] * len(SEEDS), twin_q=False)
+    agent = SACAgent(bctx.seeds, "Hopper-v5", config)
     agent.cpu_autocast = torch.bfloat16 if precision == "bf16" else None
     started = time.time()
-    run_stacked_off_policy(bctx, agent, StackedExplorer(agent))
+    with flush_denormals():  # as every registered trainer runs (baselines/registry.py)
+        run_off_policy(bctx, agent, PolicyExplorer(agent))
     return {
         "precision": precision,
         "wall_s": round(time.time() - started, 1),
