@@ -27,21 +27,17 @@ from typing import Any
 import numpy as np
 
 from replicate import drl_eg_settings
-from replicate.errors import HarnessError
-from replicate.experiments import (
+from replicate.drl_eg_settings import (
     ALWAYS_GUIDE,
     DEFAULT_GUIDE_NOISE_STD,
     SPACING_MULTIPLES,
     T2_RULE_SETTINGS,
-    GridOutcome,
-    Profile,
-    algorithm_overrides,
     drl_eg_env_defaults,
-    get_profile,
-    report_dir,
-    run_grid,
-    stored_runs,
 )
+from replicate.errors import HarnessError
+from replicate.experiments import run_grid
+from replicate.grids import algorithm_overrides, stored_runs
+from replicate.profiles import GridOutcome, Profile, get_profile, report_dir
 from replicate.provenance import portable_path
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run, prepare
 from replicate.spec import RunSpec

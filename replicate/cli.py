@@ -752,7 +752,7 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
 
 
 def _default_out(profile: str) -> Path:
-    from replicate.experiments import report_dir
+    from replicate.profiles import report_dir
 
     return report_dir(profile, "fig3")
 

@@ -15,16 +15,10 @@ import numpy as np
 
 from replicate import provenance
 from replicate.claims import Group
-from replicate.drl_eg_settings import drl_eg_env_defaults
+from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
-from replicate.experiments import (
-    DEFAULT_CHECKPOINT_INTERVAL,
-    algorithm_overrides,
-    guidance_settings,
-    stored_outcome,
-    train_and_report,
-)
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
+from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile, get_profile
 from replicate.published import FAMILY_TITLES, published_points
 from replicate.report import (
@@ -41,6 +35,7 @@ from replicate.report import (
     summary_bytes,
     threats_to_validity,
 )
+from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL
 from replicate.spec import RunSpec
 from replicate.stats import (
     CONFIDENCE,
@@ -316,7 +311,7 @@ def write_figure3_report(
     fig4_runs: list[Run] | None = None,
 ) -> Path:
     """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
-    ``guidance`` (``experiments.guidance_settings``) is printed beside the claims;
+    ``guidance`` (``drl_eg_settings.guidance_settings``) is printed beside the claims;
     ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5."""
     runs = outcome.runs
     bands, finals = summarise(runs) if runs else ([], [])

@@ -13,12 +13,15 @@ from typing import Any
 import numpy as np
 
 from replicate.claims import PAPER_FIG4_SEEDS
-from replicate.drl_eg_settings import T2_WAIT_REASON, drl_eg_env_defaults, waits_for_t2_rule
-from replicate.errors import HarnessError
-from replicate.experiments import (
-    DEFAULT_CHECKPOINT_INTERVAL,
-    algorithm_overrides,
+from replicate.drl_eg_settings import (
+    T2_WAIT_REASON,
+    drl_eg_env_defaults,
     guidance_settings,
+    waits_for_t2_rule,
+)
+from replicate.errors import HarnessError
+from replicate.grids import (
+    algorithm_overrides,
     stored_outcome,
     stored_runs,
     train_cells,
@@ -33,6 +36,7 @@ from replicate.report import (
     summary_bytes,
     threats_to_validity,
 )
+from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL
 from replicate.spec import RunSpec
 from replicate.stats import CONFIDENCE, paired_mean_difference
 from replicate.store import Run

@@ -34,7 +34,7 @@ def study_envs(profile: str) -> list[str]:
 def random_start_grid(profile: str, seeds: int | None = None) -> list[RunSpec]:
     """SAC on the study's envs, each seed with today's start (Fig. 3's run) and the random
     start."""
-    from replicate.experiments import algorithm_overrides
+    from replicate.grids import algorithm_overrides
 
     chosen = PROFILES[profile]
     specs = []
@@ -161,7 +161,7 @@ def run_random_start(
 ) -> Path | None:
     """Train what the study lacks (the random-start runs; today's are Fig. 3's) and write
     its report."""
-    from replicate.experiments import train_and_report
+    from replicate.grids import train_and_report
 
     out = Path(out_dir or report_dir(profile, NAME))
     return train_and_report(
@@ -178,7 +178,7 @@ def run_random_start(
 
 
 def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path | None:
-    from replicate.experiments import stored_outcome
+    from replicate.grids import stored_outcome
 
     outcome = stored_outcome(
         random_start_grid(profile, seeds), [], profile, store, command(profile)

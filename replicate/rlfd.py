@@ -32,14 +32,9 @@ from replicate.claims import (
     decide,
     what_would_decide,
 )
+from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
-from replicate.experiments import (
-    algorithm_overrides,
-    drl_eg_env_defaults,
-    guidance_settings,
-    stored_outcome,
-    train_and_report,
-)
+from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
 from replicate.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
 from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
@@ -337,7 +332,7 @@ def write_rlfd_report(
     guidance: list[dict[str, Any]] | None = None,
 ) -> Path:
     """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
-    ``guidance`` (``experiments.guidance_settings``) is printed beside the verdicts."""
+    ``guidance`` (``drl_eg_settings.guidance_settings``) is printed beside the verdicts."""
     from replicate import provenance
     from replicate.report import _atomic_write, mujoco_threats, summary_bytes
 

@@ -82,7 +82,7 @@ def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
 
 
 def test_a_plan_tells_points_apart_whatever_order_their_runs_come_in(tmp_path, capsys):
-    from replicate.experiments import print_plan
+    from replicate.planning import print_plan
     from replicate.runner import prepare
     from replicate.spec import RunSpec
 

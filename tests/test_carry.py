@@ -143,7 +143,7 @@ def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
 
 
 def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_path):
-    from replicate.experiments import plan_batches
+    from replicate.planning import plan_batches
 
     runs = [prepare(RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in range(4)]
     entry = carry.carry_root(tmp_path) / "batch-x"
@@ -161,7 +161,7 @@ def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_
 
 
 def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, capsys):
-    from replicate.experiments import estimate_minutes, print_plan
+    from replicate.planning import estimate_minutes, print_plan
 
     runs = [prepare(RunSpec("sac", HOPPER, seed, 6000, 3000, 1, dict(TINY))) for seed in range(3)]
     whole = estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1)
@@ -194,7 +194,7 @@ def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, ca
 
 
 def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
-    from replicate.experiments import absent_cells
+    from replicate.grids import absent_cells
 
     specs = [RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY)) for seed in (0, 1)]
     entry = carry.carry_root(tmp_path) / "batch-y"

@@ -94,7 +94,7 @@ def test_summaries_are_strict_json():
 
 
 def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
-    from replicate import drl_eg_settings, experiments
+    from replicate import drl_eg_settings
 
     if drl_eg_settings.MUJOCO_T2_RULE is not None:
         pytest.skip("the rule is set")
@@ -103,7 +103,7 @@ def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
     assert not [
         f
         for f in summary["final_returns"]
-        if f["algo"] in experiments.T2_ALGORITHMS and f["env_id"] in experiments.MUJOCO_ENVS
+        if f["algo"] in drl_eg_settings.T2_ALGORITHMS and f["env_id"] in drl_eg_settings.MUJOCO_ENVS
     ]
 
 

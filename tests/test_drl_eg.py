@@ -85,21 +85,22 @@ def test_demo_state_spacing_is_the_median_nearest_neighbour_distance():
 
 def test_envs_without_a_chosen_t2_take_it_from_their_demonstrations(monkeypatch, tmp_path):
     from replicate import demos as demos_module
-    from replicate import experiments
+    from replicate import drl_eg_settings
 
     assert (
-        experiments.drl_eg_env_defaults(MOUNTAINCAR) == experiments.DRL_EG_ENV_DEFAULTS[MOUNTAINCAR]
+        drl_eg_settings.drl_eg_env_defaults(MOUNTAINCAR)
+        == drl_eg_settings.DRL_EG_ENV_DEFAULTS[MOUNTAINCAR]
     )
     demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
-    monkeypatch.delitem(experiments.DRL_EG_ENV_DEFAULTS, MOUNTAINCAR)
-    chosen = experiments.drl_eg_env_defaults(MOUNTAINCAR)
+    monkeypatch.delitem(drl_eg_settings.DRL_EG_ENV_DEFAULTS, MOUNTAINCAR)
+    chosen = drl_eg_settings.drl_eg_env_defaults(MOUNTAINCAR)
     spacing = demo_state_spacing(demos.observations.astype(np.float64))
     assert chosen["guide_threshold"] == pytest.approx(spacing, rel=1e-3)
     assert 0 < chosen["guide_threshold"] < 0.05  # a MountainCar step moves far less than 0.05
     missing = tmp_path / "none.npz"
     monkeypatch.setattr(demos_module, "default_demo_path", lambda env_id: missing)
     with pytest.raises(Exception, match="none.npz"):
-        experiments.drl_eg_env_defaults(MOUNTAINCAR)
+        drl_eg_settings.drl_eg_env_defaults(MOUNTAINCAR)
 
 
 def test_config_rejects_negative_threshold():

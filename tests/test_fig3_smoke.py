@@ -6,7 +6,7 @@ import re
 import numpy as np
 
 from replicate.cli import main
-from replicate.experiments import DRL_EG_ENV_DEFAULTS
+from replicate.drl_eg_settings import DRL_EG_ENV_DEFAULTS
 from replicate.fig3 import FIG3_ALGORITHMS
 
 

@@ -98,8 +98,9 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
 
 def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path, capsys):
     from replicate import drl_eg_settings
-    from replicate.experiments import get_profile, waits_for_t2_rule
+    from replicate.drl_eg_settings import waits_for_t2_rule
     from replicate.fig3 import figure3_grid
+    from replicate.profiles import get_profile
 
     assert drl_eg_settings.MUJOCO_T2_RULE in drl_eg_settings.T2_RULE_SETTINGS  # fixed
     specs, _ = figure3_grid(get_profile("reduced"))
@@ -120,11 +121,11 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     import pytest
 
-    from replicate import ablation, drl_eg_settings, experiments
+    from replicate import ablation, drl_eg_settings
     from replicate.errors import HarnessError
-    from replicate.experiments import get_profile
     from replicate.fig3 import figure3_grid
     from replicate.fig4 import figure4_grid
+    from replicate.profiles import get_profile
     from replicate.rlfd import rlfd_grid
     from replicate.runner import prepare
 
@@ -148,8 +149,8 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
             threshold
         }
     assert ant(figure3_grid(reduced)[0], "drl-eg-gmm") == gmm_before  # its T2 is unused
-    assert experiments.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == grid[0]
-    assert not experiments.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
+    assert drl_eg_settings.drl_eg_env_defaults("Ant-v5", "quick")["guide_threshold"] == grid[0]
+    assert not drl_eg_settings.waits_for_t2_rule("reduced", "Ant-v5", "drl-eg")
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", "2x")  # not a setting of the sweep
     with pytest.raises(HarnessError, match="not a setting of the ablation"):
         figure3_grid(reduced)
@@ -158,9 +159,10 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from types import SimpleNamespace
 
-    from replicate import drl_eg_settings, experiments
-    from replicate.experiments import get_profile, guidance_settings
+    from replicate import drl_eg_settings
+    from replicate.drl_eg_settings import guidance_settings
     from replicate.fig3 import figure3_grid
+    from replicate.profiles import get_profile
 
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # before the rule, then with it
     specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]
@@ -189,7 +191,7 @@ def test_reports_name_where_each_t2_comes_from(monkeypatch):
     assert "rule 16x (16 times the median spacing" in rows["drl-eg"]["source"]
     quick = guidance_settings("quick", [run])
     assert quick[0]["source"].endswith("(the spacing rule, 1x)")
-    run.spec["hyperparameters"]["guide_threshold"] = experiments.ALWAYS_GUIDE
+    run.spec["hyperparameters"]["guide_threshold"] = drl_eg_settings.ALWAYS_GUIDE
     assert guidance_settings("quick", [run])[0]["t2_labels"] == ["always"]
 
 

@@ -106,7 +106,7 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
 def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
     import json
 
-    from replicate.experiments import estimate_minutes
+    from replicate.planning import estimate_minutes
 
     def stored(
         name: str, rate: float, size: int | None, algo: str = "sac", device: str = "cpu"

@@ -398,7 +398,7 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
         assert needle in result.stderr and len(result.stderr.strip().splitlines()) == 1
     assert not store.exists() or not any(store.iterdir())
     from replicate.errors import HarnessError
-    from replicate.experiments import resolve_batch
+    from replicate.planning import resolve_batch
 
     ppo_only = [prepare(RunSpec("ppo", MOUNTAINCAR, 0, 400, 200, 1, {}))]
     with pytest.raises(HarnessError, match="no batched trainer for ppo"):
@@ -406,7 +406,7 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
 
 
 def test_plan_batches_groups_by_everything_but_the_seed_and_t2():
-    from replicate.experiments import plan_batches
+    from replicate.planning import plan_batches
 
     specs = (
         _specs(seeds=(0, 1, 2))

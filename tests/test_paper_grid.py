@@ -6,8 +6,10 @@ import math
 import pytest
 
 from envs import PAPER_ENV_IDS
-from replicate.experiments import algorithm_overrides, drl_eg_env_defaults, get_profile
+from replicate.drl_eg_settings import drl_eg_env_defaults
 from replicate.fig3 import FIG3_ALGORITHMS, figure3_grid
+from replicate.grids import algorithm_overrides
+from replicate.profiles import get_profile
 from tests.helpers import train_tiny
 
 
