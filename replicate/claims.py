@@ -1,38 +1,33 @@
 """The claims ledger: each claim of the paper as checks over the run store, with a verdict.
 
 Each claim declares one primary check here, beside its code and before any run is judged;
-its other checks are secondary. A check compares a mean over seeds (or a difference of
-means) with a threshold through a t-interval: paired on per-seed differences where the two
-algorithms share seeds and initial weights (SAC and DRL-EG), Welch's otherwise.
-
-A check *holds* when its interval lies wholly on the claimed side, *fails* when it lies
-wholly on the other, is *equivalent* when a claimed difference lies wholly within the
-smallest effect of interest (a difference too small to matter, not "better" or "worse"),
-is *not testable at this budget* when a precondition was never observed, and is
-*inconclusive* otherwise. Secondary checks decide on Holm-adjusted p-values (one family per
-claim), so a claim with many checks is not failed by chance. The claim's verdict is its
-primary check's: reproduced, not reproduced, inconclusive or not testable at this budget;
-"partly reproduced" when the primary holds and a secondary check fails.
+its other checks are secondary. How a check decides is in ``replicate.checks``, how the
+claim's verdict follows from its checks, and what would decide an open one, in
+``replicate.verdicts``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from replicate.stats import (
-    CONFIDENCE,
-    MeanEstimate,
-    curve_area,
-    holm,
-    seed_matched_difference,
-    seeds_to_decide,
-    t_mean,
+from replicate.checks import (
+    FAILS,
+    HOLDS,
+    LABELS,
+    Check,
+    Group,
+    areas,
+    difference,
+    finals,
+    instabilities,
+    where,
 )
+from replicate.stats import t_mean
 from replicate.templating import count_seeds
+from replicate.verdicts import NOT_REPRODUCED, PARTLY, REPRODUCED, judge, not_judged
 
 MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = (
     "MountainCarContinuous-v0",
@@ -51,300 +46,6 @@ NEAR_DEMOS = 0.90  # "almost the same performance as the demonstrations": >= 90%
 SMALLEST_EFFECT = 0.10
 SMALLEST_INSTABILITY = 0.10  # instability is a fraction of a curve's range
 STUCK_FRACTION = 0.5  # a SAC seed is stuck when it ends below half of SAC's median seed
-ALPHA_ONE_SIDED = (1 - CONFIDENCE) / 2  # a one-sided test per side of a 95% interval
-LABELS = {
-    "sac": "SAC",
-    "ppo": "PPO",
-    "ppo-bc": "PPO+BC",
-    "ddpgfd": "DDPGfD",
-    "drl-eg": "DRL-EG",
-    "drl-eg-gmm": "DRL-EG (GMM)",
-}
-PAIRED = ("sac", "drl-eg")  # same seed, same initial weights: their differences are paired
-
-REPRODUCED, PARTLY, NOT_REPRODUCED = "reproduced", "partly reproduced", "not reproduced"
-INCONCLUSIVE, NOT_TESTABLE = "inconclusive", "not testable at this budget"
-HOLDS, FAILS, EQUIVALENT = "holds", "fails", "equivalent"
-
-
-@dataclass
-class Group:
-    """The runs of one algorithm on one env, by seed: final returns and curves."""
-
-    env_id: str
-    algo: str
-    seeds: list[int]
-    finals: np.ndarray  # (runs,) return at the last evaluation point
-    curves: np.ndarray  # (runs, points) over the evaluation steps all runs share
-    steps: np.ndarray | None = None  # (points,) those steps; None: evenly spaced
-    # env steps per second of one training process, by device kind ("cpu", "gpu"), median
-    # over the group's runs (a seed batch's members together): what more seeds would cost
-    rates: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def areas(self) -> np.ndarray:
-        """Per run, the mean return over the curve (``replicate.stats.curve_area``)."""
-        steps = self.steps if self.steps is not None else np.arange(self.curves.shape[1])
-        return curve_area(steps, self.curves)
-
-    @property
-    def budget(self) -> int | None:
-        return int(self.steps[-1]) if self.steps is not None else None
-
-
-def instability(curve: np.ndarray) -> float:
-    """Sum of the drops between consecutive evaluations, over the curve's range: 0 for a
-    curve that never falls, about 1 for one that gives back everything it gained once."""
-    drops = np.clip(-np.diff(curve), 0.0, None).sum()
-    spread = np.ptp(curve)
-    return float(drops / spread) if spread > 0 else 0.0
-
-
-def difference(
-    a: Group, b: Group, values: Callable[[Group], np.ndarray], what: str
-) -> MeanEstimate:
-    """``values(a) - values(b)``: paired over shared seeds when a and b are SAC and DRL-EG
-    (same seeds, same initial weights) or ran the same seeds, else Welch over all runs."""
-    quantity = f"{where(a)}: {LABELS[a.algo]} minus {LABELS[b.algo]}, {what}"
-    return seed_matched_difference(
-        dict(zip(a.seeds, values(a).tolist())),
-        dict(zip(b.seeds, values(b).tolist())),
-        quantity,
-        pair={a.algo, b.algo} <= set(PAIRED),
-    )
-
-
-def where(group: Group) -> str:
-    """The env and budget a quantity belongs to: '(Ant-v5, 500,000 steps)' names one."""
-    return f"{group.env_id} at {group.budget:,} steps" if group.budget else group.env_id
-
-
-def finals(group: Group) -> np.ndarray:
-    return group.finals
-
-
-def areas(group: Group) -> np.ndarray:
-    return group.areas
-
-
-def instabilities(group: Group) -> np.ndarray:
-    return np.array([instability(c) for c in group.curves])
-
-
-@dataclass
-class Check:
-    """One check: an estimate against the claimed side of a threshold (``above``) or
-    inside a band (``within``), with the p-values that decide it."""
-
-    what: str
-    estimate: MeanEstimate
-    above: float | None = None
-    within: tuple[float, float] | None = None
-    smallest_effect: float | None = None  # for ``above`` on a difference
-    primary: bool = False
-    seeds_meeting: int | None = None
-    not_testable: str | None = None  # why the check cannot be decided at this budget
-    groups: tuple[Group, ...] = ()  # whose runs more seeds would add to
-    state: str = INCONCLUSIVE
-    adjusted: dict[str, float] = field(default_factory=dict)
-    decide: str | None = None
-
-    def p_values(self) -> dict[str, float]:
-        """One-sided p-values of 'it holds', 'it fails' and, with a smallest effect,
-        'it is equivalent' (two one-sided tests)."""
-        est = self.estimate
-        if self.within is not None:
-            lo, hi = self.within
-            return {
-                HOLDS: max(est.p_above(lo), est.p_below(hi)),
-                FAILS: min(est.p_below(lo), est.p_above(hi)),
-            }
-        p = {HOLDS: est.p_above(self.above), FAILS: est.p_below(self.above)}
-        if self.smallest_effect:
-            p[EQUIVALENT] = max(
-                est.p_above(self.above - self.smallest_effect),
-                est.p_below(self.above + self.smallest_effect),
-            )
-        return p
-
-    def distance(self) -> float:
-        """How far the estimate lies from what would decide the check: the nearer bound of
-        a band; for ``above``, the threshold, or inside the smallest effect of interest
-        whichever of 'beyond the threshold' and 'within the band' comes first."""
-        value = self.estimate.value
-        if self.within is not None:
-            return min(abs(value - self.within[0]), abs(value - self.within[1]))
-        gap = abs(value - self.above)
-        if self.smallest_effect and gap < self.smallest_effect:
-            return max(gap, self.smallest_effect - gap)
-        return gap
-
-    def as_dict(self) -> dict[str, Any]:
-        est = self.estimate
-        return {
-            "what": self.what,
-            "role": "primary" if self.primary else "secondary",
-            "estimate": est.value,
-            "low": est.low,
-            "high": est.high,
-            "method": est.label,
-            "quantity": est.as_dict(),
-            "threshold": self.above,
-            "band": list(self.within) if self.within else None,
-            "smallest_effect": self.smallest_effect,
-            "verdict": self.state,
-            "p_adjusted": self.adjusted,
-            "seeds_meeting": self.seeds_meeting,
-            "n": est.n,
-            "not_testable": self.not_testable,
-            "decide": self.decide,
-        }
-
-
-def decide(checks: list[Check]) -> None:
-    """Set every check's state: the primary ones on their own p-values, the secondary ones
-    on Holm-adjusted p-values, one family per outcome over the claim's secondary checks."""
-    secondary = [c for c in checks if not c.primary and not c.not_testable]
-    raw = [c.p_values() for c in secondary]
-    families = {o: holm([p.get(o, np.nan) for p in raw]) for o in (HOLDS, FAILS, EQUIVALENT)}
-    for check in checks:
-        if check.not_testable:
-            check.state, check.adjusted = NOT_TESTABLE, {}
-            continue
-        if check.primary:
-            p = check.p_values()
-        else:
-            k = secondary.index(check)
-            p = {o: families[o][k] for o in raw[k]}
-        check.adjusted = {o: float(v) for o, v in p.items()}
-        check.state = next(
-            (
-                o
-                for o in (EQUIVALENT, HOLDS, FAILS)
-                if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED
-            ),
-            INCONCLUSIVE,
-        )
-
-
-def _hours(steps: int, rate: float, processes: int) -> str:
-    hours = steps / (rate * processes) / 3600
-    return f"{hours:.1f} h" if hours >= 1 else f"{hours * 60:.0f} min"
-
-
-def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
-    """For an inconclusive check: how many seeds would decide it if the observed effect and
-    spread held (a secondary check at the Bonferroni level of its ``family``, which Holm's
-    adjustment never asks more than), and what they would cost at the rates of the store's
-    runs; in full and in short (for the front door)."""
-    if check.state != INCONCLUSIVE:
-        return None
-    est = check.estimate
-    if not est.defined:
-        return ("a second seed: one run gives no interval",) * 2
-    level = CONFIDENCE if check.primary else 1 - (1 - CONFIDENCE) / max(family, 1)
-    needed = seeds_to_decide(est, check.distance(), level)
-    unit = "pairs" if est.method.startswith("paired") else "seeds"
-    if needed is None:
-        text = (
-            "no number of seeds at this budget: the estimate sits at what decides the "
-            "check; only a longer budget (where the effect may differ) can"
-        )
-        return text, "no number of seeds at this budget; a longer budget might"
-    per_group = (
-        [needed - est.n] * len(check.groups)
-        if est.n_other is None
-        else [needed - est.n, needed - est.n_other][: len(check.groups)]
-    )
-    extra_runs = sum(max(0, k) for k in per_group)
-    text = (
-        f"about {needed} {unit} (the smallest n whose {level * 100:.3g}% {est.method} is "
-        f"narrower than the distance {check.distance():.3g} to what decides it, at the "
-        "observed mean and spread)"
-    )
-    short = f"about {needed} {unit}"
-    budget = max((g.budget or 0) for g in check.groups) if check.groups else 0
-    if extra_runs and budget:
-        steps = extra_runs * budget
-        costs = []
-        for kind, machine, processes in (("cpu", "a 2-core CPU", 2), ("gpu", "a GPU machine", 1)):
-            rates = [g.rates[kind] for g in check.groups if kind in g.rates]
-            if rates:
-                costs.append(f"about {_hours(steps, min(rates), processes)} on {machine}")
-        runs = f"{extra_runs} more run" + ("s" if extra_runs != 1 else "")
-        cost = f"{runs}, {steps:,} env steps" + (", " + " or ".join(costs) if costs else "")
-        text += f": {cost}" + (" at the rates the store's runs recorded" if costs else "")
-        short += f": {cost}"
-    return text, short
-
-
-def judge(
-    claim_id: int, title: str, paper: str, checks: list[Check], used: list[Group]
-) -> dict[str, Any]:
-    """The claim's verdict from its primary checks (all must hold: an intersection-union
-    test needs no correction), with the secondary checks listed."""
-    decide(checks)
-    family = sum(1 for c in checks if not c.primary and not c.not_testable)
-    shorts = []
-    for check in checks:
-        full_and_short = what_would_decide(check, family)
-        check.decide = check.not_testable or (full_and_short[0] if full_and_short else None)
-        if check.primary and check.decide:
-            where_ = check.estimate.quantity.split(":")[0].split(" at ")[0]
-            shorts.append(f"{where_}: " + (check.not_testable or full_and_short[1]))
-    primary = [c for c in checks if c.primary]
-    states = {c.state for c in primary}
-    # a secondary check fails, or finds a difference the claim states equivalent to none
-    failing = [
-        c.what
-        for c in checks
-        if not c.primary and (c.state == FAILS or (c.state == EQUIVALENT and c.within is None))
-    ]
-    if NOT_TESTABLE in states:
-        verdict = NOT_TESTABLE
-    elif states == {HOLDS}:
-        verdict = PARTLY if failing else REPRODUCED
-    elif states & {FAILS, EQUIVALENT}:
-        verdict = NOT_REPRODUCED
-    else:
-        verdict = INCONCLUSIVE
-    budgets = [g.budget for g in used if g.budget]
-    seeds = [len(g.seeds) for g in used]
-    return {
-        "id": claim_id,
-        "title": title,
-        "paper": paper,
-        "verdict": verdict,
-        "steps": max(budgets) if budgets else None,
-        "seeds": [min(seeds), max(seeds)] if seeds else None,
-        "decides": shorts,
-        "primary": [c.what for c in primary],
-        "not_met": failing,
-        "parts": [c.as_dict() for c in checks],
-        "effect": primary[0].estimate.as_dict()
-        if primary and not primary[0].not_testable
-        else None,
-        "algorithms": sorted(
-            {f"{LABELS[g.algo]} on {g.env_id} ({count_seeds(len(g.seeds))})" for g in used}
-        ),
-    }
-
-
-def not_judged(claim_id: int, title: str, paper: str, why: str) -> dict[str, Any]:
-    return {
-        "id": claim_id,
-        "title": title,
-        "paper": paper,
-        "verdict": f"not judged: {why}",
-        "steps": None,
-        "seeds": None,
-        "decides": [],
-        "primary": [],
-        "not_met": [],
-        "parts": [],
-        "effect": None,
-        "algorithms": [],
-    }
 
 
 def _need(groups: dict[tuple[str, str], Group], pairs: list[tuple[str, str]]) -> str | None:

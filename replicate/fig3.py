@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from replicate import provenance
-from replicate.claims import Group
+from replicate.checks import Group
 from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from replicate.claims import Group
+from replicate.checks import Group
 from replicate.figure_registry import seed_words
 from replicate.profiles import PAPER_SEEDS_FIG3, Profile
 from replicate.published import published_points

@@ -22,16 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from replicate.claims import (
-    EQUIVALENT,
-    FAILS,
-    HOLDS,
-    PAIRED,
-    SMALLEST_EFFECT,
-    Check,
-    decide,
-    what_would_decide,
-)
+from replicate.checks import EQUIVALENT, FAILS, HOLDS, PAIRED, Check, decide
+from replicate.claims import SMALLEST_EFFECT
 from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
 from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
@@ -48,6 +40,7 @@ from replicate.stats import (
     substream,
 )
 from replicate.templating import report_environment
+from replicate.verdicts import what_would_decide
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"

@@ -5,21 +5,18 @@ differences where seeds are shared, and what would decide an open check."""
 import numpy as np
 import pytest
 
+from replicate.checks import Check, Group, decide, instability
 from replicate.claims import (
     ANT,
     CHEETAH,
     HOPPER,
     MOUNTAINCAR,
     WALKER,
-    Check,
-    Group,
     claim_1,
     claim_2,
     claim_3,
     claim_4,
     claim_5,
-    decide,
-    instability,
     judge_claims,
 )
 from replicate.stats import t_mean

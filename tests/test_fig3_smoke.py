@@ -88,7 +88,7 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
 
 
 def test_published_sac_sits_beside_ours_at_the_same_steps():
-    from replicate.claims import Group
+    from replicate.checks import Group
     from replicate.fig3 import efficiency_rows
     from replicate.published import published_points
     from replicate.report import published_rows
