@@ -5,7 +5,7 @@ import numpy as np
 import optuna
 import pandas as pd
 
-from replicate.ablation import area_under_curve
+from replicate.ablation_grid import area_under_curve
 from replicate.cli import main
 from replicate.runner import Run
 
@@ -179,7 +179,7 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 ):
     import dataclasses
 
-    from replicate import ablation, profiles
+    from replicate import ablation, ablation_grid, profiles
 
     env_id = "Walker2d-v5"
     smoke = profiles.PROFILES["smoke"]
@@ -189,13 +189,13 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
         eval_interval={**smoke.eval_interval, env_id: 100},
     )
     monkeypatch.setitem(profiles.PROFILES, "smoke", tiny)
-    spacing = ablation.threshold_spacing(env_id)
-    assert spacing and ablation.default_thresholds("smoke", env_id) == [
+    spacing = ablation_grid.threshold_spacing(env_id)
+    assert spacing and ablation_grid.default_thresholds("smoke", env_id) == [
         spacing,
         4 * spacing,
         16 * spacing,
         64 * spacing,
-        ablation.ALWAYS,
+        ablation_grid.ALWAYS,
     ]
     store, out = tmp_path / "runs", tmp_path / "report"
     assert (
@@ -258,7 +258,8 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
     import numpy as np
 
-    from replicate.ablation import T2_RULE_SETTINGS, choose_t2_rule
+    from replicate.ablation import choose_t2_rule
+    from replicate.drl_eg_settings import T2_RULE_SETTINGS
 
     envs = ("Ant-v5", "Walker2d-v5")
     gains = {

@@ -121,7 +121,7 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     import pytest
 
-    from replicate import ablation, drl_eg_settings
+    from replicate import ablation_grid, drl_eg_settings
     from replicate.errors import HarnessError
     from replicate.fig3 import figure3_grid
     from replicate.fig4 import figure4_grid
@@ -130,7 +130,7 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     from replicate.runner import prepare
 
     reduced = get_profile("reduced")
-    grid = ablation.default_thresholds("reduced", "Ant-v5")  # 1x, 4x, 16x, 64x, always
+    grid = ablation_grid.default_thresholds("reduced", "Ant-v5")  # 1x, 4x, 16x, 64x, always
 
     def ant(specs, algo="drl-eg"):
         return [s for s in specs if s.env_id == "Ant-v5" and s.algo == algo]
@@ -139,9 +139,9 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
         return [prepare(s).run_id for s in specs]
 
     gmm_before = ant(figure3_grid(reduced)[0], "drl-eg-gmm")
-    for setting, threshold in zip(ablation.T2_RULE_SETTINGS, grid):
+    for setting, threshold in zip(drl_eg_settings.T2_RULE_SETTINGS, grid):
         monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", setting)
-        sweep = ablation.ablation_specs(reduced, "Ant-v5", threshold, 0.1, 3)
+        sweep = ablation_grid.ablation_specs(reduced, "Ant-v5", threshold, 0.1, 3)
         # a ruled run is the ablation's run of that setting: same spec, same run id
         assert ids(ant(figure3_grid(reduced)[0])[:3]) == ids(sweep)
         assert ids(ant(rlfd_grid(reduced)[0])[:3]) == ids(sweep)

@@ -54,7 +54,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
-from replicate import ablation, figures, rlfd  # noqa: E402
+from replicate import ablation_grid, ablation_report, figures, rlfd  # noqa: E402
 from replicate.figures import (  # noqa: E402
     ALGO_COLORS,
     CurveBand,
@@ -238,10 +238,12 @@ def test_summarise_keeps_each_seeds_curve_under_the_band():
 
 
 def test_the_ablation_t2_ticks_do_not_overlap(drawn):
-    labels = [ablation.threshold_label(t, 0.651) for t in (0, 0.651, 2.6, 10.4, 41.7)] + ["always"]
+    labels = [ablation_grid.threshold_label(t, 0.651) for t in (0, 0.651, 2.6, 10.4, 41.7)] + [
+        "always"
+    ]
     est = {"mean": 1.0, "low": 0.5, "high": 1.5, "n": 3}
     rows = [{"sigma": 0.1, "label": label, "final": est, "auc": est} for label in labels]
-    ablation._figure(rows, 0.8, 0.7)
+    ablation_report._figure(rows, 0.8, 0.7)
     fig = drawn[0]
     renderer = fig.canvas.get_renderer()
     for ax in (a for a in fig.axes if a.axison):
