@@ -205,7 +205,8 @@ def test_listing_commands(capsys):
 
 
 def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeypatch):
-    from replicate.cli import PROFILE_NAMES, default_store
+    from replicate.cli import default_store
+    from replicate.cli_options import PROFILE_NAMES
     from replicate.profiles import PROFILES
 
     assert PROFILE_NAMES == tuple(PROFILES)
@@ -237,11 +238,11 @@ def test_help_describes_every_profile_and_states_each_default_once(command, caps
 
 
 def test_expert_without_env_trains_every_expert_env_in_turn(monkeypatch):
-    from replicate import cli
+    from replicate import cli, cli_runs
     from replicate.experts import EXPERT_ENVS
 
     seen = []
-    monkeypatch.setattr(cli, "_one_expert", lambda args: seen.append(args.env))
+    monkeypatch.setattr(cli_runs, "_one_expert", lambda args: seen.append(args.env))
     assert cli.main(["expert", "--export-only"]) == 0
     assert seen == list(EXPERT_ENVS)
     seen.clear()

@@ -12,7 +12,8 @@ import pytest
 
 from baselines.common.checkpoint import TimeLimitReached
 from replicate import experiments
-from replicate.cli import TIME_LIMIT_EXIT, main, parse_time_limit
+from replicate.cli import main, parse_time_limit
+from replicate.cli_options import TIME_LIMIT_EXIT
 from replicate.errors import HarnessError
 from replicate.runner import (
     CHECKPOINT_FILE,
