@@ -13,9 +13,10 @@ the parts trained so far) beside it.
 
 Layout: ``<store>/carry/<batch id or run id>/`` holding ``manifest.json``,
 ``state.pt.xz``, ``actions-<k>.npy.xz`` per member and ``partial/<run id>/``.
-``python -m replicate carry`` packs every unfinished checkpoint of a store; the runner
-unpacks a carried one when it meets a run or batch without a local checkpoint (or with an
-older one), and removes it when the run or batch lands, never when it fails.
+``python -m replicate carry`` packs every unfinished checkpoint of a store. The carry is a
+checkpoint place (``replicate.checkpoint_places``): the runner, through that interface only,
+has a carried batch unpacked when it meets the batch without a local checkpoint (or with an
+older one), and has it removed when the batch lands, never when it fails.
 """
 
 from __future__ import annotations
@@ -34,9 +35,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from replicate import provenance
+from replicate import checkpoint_places, provenance
+from replicate.checkpoint_places import CHECKPOINT_FILE, KeptCheckpoint
 from replicate.errors import HarnessError
 
 CARRY_DIR = "carry"
@@ -44,7 +45,6 @@ FORMAT = 1
 STATE_FILE = "state.pt.xz"
 ACTIONS_FILE = "actions-{}.npy.xz"  # member k's actions
 MANIFEST_FILE = "manifest.json"
-CHECKPOINT_FILE = "checkpoint.pt"  # replicate.runner's name for it
 RUN_FILES = ("spec.json", "curve.csv", "sittings.json")  # what a run directory has mid-training
 BATCH_FILES = ("sittings.json", "members.json")
 
@@ -93,6 +93,8 @@ def regenerate_batch_replay(
     produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
     ``baselines.offpolicy.run_off_policy`` steps them (every member alive); with the
     envs' snapshot and observations where the actions leave them."""
+    import torch
+
     from baselines.common.stacked import StackedReplay
     from envs.vector import EnvBatch
 
@@ -123,6 +125,8 @@ def _write_xz(path: Path, payload: bytes) -> None:
 def _write_state(target: Path, state: dict[str, Any], actions: np.ndarray) -> None:
     """The checkpoint without its replay, and each member's actions in a file of its own
     (a paper-budget member's are 32 MB; one file per member keeps every file small)."""
+    import torch
+
     raw = io.BytesIO()
     torch.save(state, raw)
     _write_xz(target / STATE_FILE, raw.getvalue())
@@ -133,6 +137,8 @@ def _write_state(target: Path, state: dict[str, Any], actions: np.ndarray) -> No
 
 
 def _read_state(path: Path, members: int) -> tuple[dict[str, Any], np.ndarray]:
+    import torch
+
     state = torch.load(
         io.BytesIO(lzma.decompress((path / STATE_FILE).read_bytes())),
         weights_only=False,
@@ -247,6 +253,8 @@ def _not_behind(store: Path, name: str, step: int) -> None:
 
 
 def _load(path: Path) -> dict[str, Any]:
+    import torch
+
     return torch.load(path, weights_only=False, map_location="cpu")
 
 
@@ -388,6 +396,8 @@ def should_unpack(store: Path, name: str, local_checkpoint: Path) -> bool:
     if not local_checkpoint.is_file():
         return True
     step = json.loads((path / MANIFEST_FILE).read_text())["step"]
+    import torch  # only here: the dry run and the reports read the carry without torch
+
     # mapped, not read: a batch checkpoint's replay is hundreds of MB
     local = torch.load(local_checkpoint, weights_only=False, map_location="cpu", mmap=True)
     return step > int(local["step"])
@@ -446,6 +456,8 @@ def unpack_batch(store: Path, ident: str) -> bool:
     path = carried(store, ident)
     if path is None:
         return False
+    import torch
+
     manifest, state, actions = _load_carried(path, "batch")
     data, envs, obs = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
     replay = _check_rebuilt(path, manifest, _sha256(data))
@@ -473,20 +485,6 @@ def discard(store: Path, name: str) -> None:
     shutil.rmtree(carry_root(store) / name, ignore_errors=True)
 
 
-def resumable_steps(store: Path, run_ids: set[str], batches: bool = True) -> dict[str, int]:
-    """Each of ``run_ids`` that resumes from a carried checkpoint, with the step it resumes
-    at: the members of every carry whose runs are all among ``run_ids`` (a carry resumes
-    only whole, ``replicate.experiments.carried_tasks``); ``batches`` False: of carried
-    single runs only (an executor that trains one run per task starts a larger carried batch
-    over)."""
-    return {
-        run_id: int(manifest["step"])
-        for manifest in listing(store)
-        if set(manifest["members"]) <= run_ids and (batches or len(manifest["members"]) == 1)
-        for run_id in manifest["members"]
-    }
-
-
 def listing(store: Path) -> list[dict[str, Any]]:
     """The manifests of everything carried in the store."""
     root = carry_root(store)
@@ -499,3 +497,34 @@ def listing(store: Path) -> list[dict[str, Any]]:
         for p in sorted(root.iterdir())
         if not p.name.startswith(".") and (p / MANIFEST_FILE).is_file()
     ]
+
+
+class CarryPlace:
+    """The carry as a checkpoint place (``replicate.checkpoint_places``)."""
+
+    def kept(self, store: Path) -> list[KeptCheckpoint]:
+        return [
+            KeptCheckpoint(
+                name=m["name"],
+                members=tuple(m["members"]),
+                step=int(m["step"]),
+                where=carry_root(store),
+                note=f"carried: {m['kind']} {m['name']} at step {m['step']:,} "
+                f"(packed {m['packed_utc']} on {m['cpu_model']})",
+            )
+            for m in listing(store)
+        ]
+
+    def fetch(self, store: Path, name: str, checkpoint: Path) -> None:
+        if should_unpack(store, name, checkpoint):
+            unpack_batch(store, name)  # packed before, maybe on another machine
+
+    def landed(self, store: Path, names: list[str]) -> None:
+        for name in names:
+            discard(store, name)
+
+    def tidy(self, store: Path) -> None:
+        prune(store)
+
+
+checkpoint_places.register(CarryPlace())

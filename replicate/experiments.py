@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from baselines.common.checkpoint import TimeLimitReached, past
 from baselines.common.device import worker_devices
-from replicate import carry
+from replicate import checkpoint_places
 from replicate.errors import HarnessError, TimeLimitStop
 from replicate.planning import (
     estimate_minutes,
@@ -208,7 +208,7 @@ def run_grid(
         )
     except ValueError as exc:
         raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
-    carry.prune(store)  # what landed elsewhere is carried no more
+    checkpoint_places.tidy(store)  # what landed by another way is kept no more
     tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots), store)
     workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
     if env_workers is None:
@@ -223,7 +223,7 @@ def run_grid(
     batched_note = (
         f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)" if batches else ""
     )
-    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
+    carried = sum(checkpoint_places.resumable_steps(store, {p.run_id for p in missing}).values())
     carried_note = f" ({carried:,} of them carried)" if carried else ""
     print(
         f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "

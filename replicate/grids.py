@@ -8,7 +8,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Callable
 
-from replicate import carry
+from replicate import checkpoint_places
 from replicate.drl_eg_settings import T2_WAIT_REASON, waits_for_t2_rule
 from replicate.errors import HarnessError
 from replicate.experiments import run_grid
@@ -121,28 +121,28 @@ def absent_cells(
     specs: list[RunSpec], command: str, store: Path | None = None
 ) -> list[tuple[str, str, str]]:
     """A report's (env, algo, reason) line per cell for the runs not in the store yet, with
-    the seeds each cell lacks and, for those carried unfinished in ``store``
-    (``replicate.carry``), the step they are carried at."""
-    carried_at = {
-        run_id: manifest["step"]
-        for manifest in (carry.listing(store) if store is not None else [])
-        for run_id in manifest["members"]
-    }
+    the seeds each cell lacks and, for those whose checkpoints are kept elsewhere
+    (``replicate.checkpoint_places``: carried, say), where and the step they are kept at."""
+    kept = checkpoint_places.kept(store)
+    carried_at = {run_id: k.step for k in kept for run_id in k.members}
+    kept_where = {run_id: k.where for k in kept for run_id in k.members}
     seeds: dict[tuple[str, str], list[int]] = {}
     steps: dict[tuple[str, str], list[tuple[int, int]]] = {}
+    wheres: dict[tuple[str, str], Path] = {}
     for spec in specs:
         cell = (spec.env_id, spec.algo)
         seeds.setdefault(cell, []).append(spec.seed)
-        step = carried_at.get(prepare(spec).run_id) if carried_at else None
-        if step is not None:
-            steps.setdefault(cell, []).append((spec.seed, step))
+        run_id = prepare(spec).run_id if carried_at else None
+        if run_id in carried_at:
+            steps.setdefault(cell, []).append((spec.seed, carried_at[run_id]))
+            wheres[cell] = kept_where[run_id]
     lines = []
     for cell, lacking in seeds.items():
         one = len(lacking) == 1
         carried_note = ""
         if cell in steps:
             at = ", ".join(f"seed {seed} at step {step:,}" for seed, step in sorted(steps[cell]))
-            where = portable_path(carry.carry_root(store))
+            where = portable_path(wheres[cell])
             carried_note = f"; carried unfinished in {where}: {at}"
         lines.append(
             (

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from replicate import carry
+from replicate import checkpoint_places
 from replicate.errors import HarnessError
 from replicate.runner import PreparedRun, batch_key
 from replicate.store import completed_runs
@@ -15,16 +15,17 @@ from replicate.store import completed_runs
 def carried_tasks(
     missing: list[PreparedRun], store: Path | None
 ) -> tuple[list[PreparedRun | list[PreparedRun]], list[PreparedRun]]:
-    """The runs and seed batches carried in the store (``replicate.carry``) whose members
-    are all missing, each as it was carried (a batch as the batch it was, a run alone), and
-    the missing runs left over."""
+    """The runs and seed batches whose checkpoints are kept elsewhere for the store
+    (``replicate.checkpoint_places``: carried, say) and whose members are all missing, each
+    as it was kept (a batch as the batch it was, a run alone), and the missing runs left
+    over."""
     if store is None:
         return [], list(missing)
     by_id = {p.run_id: p for p in missing}
     tasks: list[PreparedRun | list[PreparedRun]] = []
-    for manifest in carry.listing(store):
-        if all(r in by_id for r in manifest["members"]):
-            members = [by_id.pop(r) for r in manifest["members"]]
+    for kept in checkpoint_places.kept(store):
+        if all(r in by_id for r in kept.members):
+            members = [by_id.pop(r) for r in kept.members]
             tasks.append(members if len(members) > 1 else members[0])
     return tasks, [p for p in missing if p.run_id in by_id]
 
@@ -100,7 +101,7 @@ def estimate_minutes(
     make smaller batches and single runs look faster than they are."""
     rates = measured_rates(store, on_gpu) if rates is None else rates
     # a carried run resumes at its carried step: only the rest is trained here
-    done = carry.resumable_steps(
+    done = checkpoint_places.resumable_steps(
         store, {r for task in tasks for r in task_ids(task)}, batches=carried_batches
     )
     by_algo: dict[str, list[float]] = {}
@@ -225,7 +226,7 @@ def print_plan(
     for (env_id, algo, settings), runs in sorted(cells.items()):
         seeds = ",".join(str(p.spec.seed) for p in sorted(runs, key=lambda p: p.spec.seed))
         steps = sum(p.spec.total_steps for p in runs)
-        carried = sum(carry.resumable_steps(store, {p.run_id for p in runs}).values())
+        carried = sum(checkpoint_places.resumable_steps(store, {p.run_id for p in runs}).values())
         point = f"  ({settings})" if settings else ""
         point += f"  ({carried:,} of them carried)" if carried else ""
         print(
@@ -243,14 +244,11 @@ def print_plan(
         return
     tasks = plan_batches(missing, DEFAULT_GPU_BATCH if on_gpu and batch is None else batch, store)
     asked = {p.run_id for p in missing}
-    for manifest in carry.listing(store):
-        members = set(manifest["members"])
+    for kept in checkpoint_places.kept(store):
+        members = set(kept.members)
         if not asked & members:
             continue
-        where = (
-            f"carried: {manifest['kind']} {manifest['name']} at step {manifest['step']:,} "
-            f"(packed {manifest['packed_utc']} on {manifest['cpu_model']})"
-        )
+        where = kept.note
         if members <= asked:
             print(
                 f"  {where}; it resumes from there"
@@ -261,7 +259,7 @@ def print_plan(
                 f"  {where}: {len(members - asked)} of its runs are not in this plan, so "
                 "it does not resume here; its runs in the plan start over"
             )
-    carried = sum(carry.resumable_steps(store, {p.run_id for p in missing}).values())
+    carried = sum(checkpoint_places.resumable_steps(store, {p.run_id for p in missing}).values())
     batches = [t for t in tasks if isinstance(t, list)]
     used = max(1, min(workers, len(tasks)))
     longest = max((estimate_minutes([t], store, 1, rates) for t in tasks), default=0.0)

@@ -9,7 +9,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from baselines.common.checkpoint import TimeLimitReached, past
-from replicate import carry
+from replicate import checkpoint_places
 from replicate.errors import HarnessError
 from replicate.planning import estimate_minutes
 from replicate.runner import PreparedRun, execute
@@ -68,9 +68,9 @@ def run_on_ray(
     )
     asked = {p.run_id for p in missing}
     carried_batches = [
-        m["name"]
-        for m in carry.listing(store)
-        if len(m["members"]) > 1 and asked & set(m["members"])
+        k.name
+        for k in checkpoint_places.kept(store)
+        if len(k.members) > 1 and asked & set(k.members)
     ]
     if carried_batches:
         print(

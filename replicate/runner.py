@@ -42,7 +42,7 @@ from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
 from baselines.common.context import BatchContext, EvalPoint, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import batchable_algorithms, get_algorithm
-from replicate import carry, provenance
+from replicate import checkpoint_places, provenance
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.errors import HarnessError
@@ -125,7 +125,7 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
 
 
 DEFAULT_CHECKPOINT_INTERVAL = 10_000  # env steps; taken at the next episode end
-CHECKPOINT_FILE = carry.CHECKPOINT_FILE
+CHECKPOINT_FILE = checkpoint_places.CHECKPOINT_FILE
 SITTINGS_FILE = "sittings.json"  # the parts a run was trained in (the name is the format's)
 BEST_POLICY_FILE = "best_policy.pt"  # runs with keep_best_policy (experts)
 
@@ -434,8 +434,7 @@ def execute_batch(
                 )
         batch_dir.mkdir(exist_ok=True)
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
-        if carry.should_unpack(store, ident, batch_dir / CHECKPOINT_FILE):
-            carry.unpack_batch(store, ident)  # packed before, maybe on another machine
+        checkpoint_places.fetch(store, ident, batch_dir / CHECKPOINT_FILE)  # kept elsewhere?
         batch_parts = batch_dir / SITTINGS_FILE
         earlier = json.loads(batch_parts.read_text()) if batch_parts.is_file() else []
         resolved = resolve_device(device, has_gpu_path=algorithm.gpu)
@@ -550,8 +549,7 @@ def execute_batch(
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
         shutil.rmtree(batch_dir, ignore_errors=True)
-        for name in [ident, *(run.path.name for run in runs)]:  # and any carried as runs
-            carry.discard(store, name)
+        checkpoint_places.landed(store, [ident, *(run.path.name for run in runs)])
         return BatchOutcome(runs, failed)
     finally:
         for lock_path, handle in locks:

@@ -150,7 +150,17 @@ def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_
     entry.mkdir(parents=True)
     members = [runs[3].run_id, runs[1].run_id]
     (entry / carry.MANIFEST_FILE).write_text(
-        json.dumps({"format": carry.FORMAT, "kind": "batch", "name": "batch-x", "members": members})
+        json.dumps(
+            {
+                "format": carry.FORMAT,
+                "kind": "batch",
+                "name": "batch-x",
+                "step": 350,
+                "members": members,
+                "packed_utc": "then",
+                "cpu_model": "x",
+            }
+        )
     )
     for batch in (None, 1, 3):
         tasks = plan_batches(runs, batch, tmp_path)
@@ -207,6 +217,8 @@ def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
                 "name": "batch-y",
                 "step": 1234,
                 "members": [prepare(specs[1]).run_id],
+                "packed_utc": "then",
+                "cpu_model": "x",
             }
         )
     )
@@ -276,3 +288,65 @@ def test_a_kill_mid_swap_leaves_the_last_carried_version_found(tmp_path):
         )
     assert [m["name"] for m in carry.listing(tmp_path)] == ["run-a"]  # put back; b unfinished
     assert carry.carried(tmp_path, "run-a") is not None and carry.carried(tmp_path, "run-b") is None
+
+
+def test_the_runner_and_the_scheduler_reach_the_carry_only_through_checkpoint_places():
+    import ast
+    from pathlib import Path
+
+    import replicate
+
+    core = ("runner", "experiments", "planning", "grids", "ray_executor")
+    for name in core:
+        tree = ast.parse((Path(replicate.__file__).parent / f"{name}.py").read_text())
+        imported = {
+            (node.module or "") + "." + alias.name
+            for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom)
+            for alias in node.names
+        } | {
+            alias.name
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Import)
+            for alias in node.names
+        }
+        assert not {i for i in imported if i.startswith("replicate.carry")}, name
+
+
+def test_a_checkpoint_place_is_asked_before_a_batch_trains_and_told_when_it_lands(
+    tmp_path, monkeypatch
+):
+    from replicate import checkpoint_places
+    from replicate.checkpoint_places import KeptCheckpoint
+    from replicate.planning import estimate_minutes
+
+    class Place:
+        def __init__(self):
+            self.fetched, self.landed_names = [], []
+
+        def kept(self, store):
+            return [KeptCheckpoint("batch-elsewhere", ("run-a", "run-b"), 300, tmp_path, "kept")]
+
+        def fetch(self, store, name, checkpoint):
+            self.fetched.append((name, checkpoint.name))
+
+        def landed(self, store, names):
+            self.landed_names.extend(names)
+
+        def tidy(self, store):
+            pass
+
+    place = Place()
+    monkeypatch.setattr(checkpoint_places, "PLACE_MODULES", ())
+    monkeypatch.setattr(checkpoint_places, "_PLACES", [place])
+    assert checkpoint_places.resumable_steps(tmp_path, {"run-a", "run-b", "run-c"}) == {
+        "run-a": 300,
+        "run-b": 300,
+    }
+    assert checkpoint_places.resumable_steps(tmp_path, {"run-a"}) == {}  # only whole
+    (prepared,) = [prepare(RunSpec("sac", HOPPER, 0, 200, 100, 1, dict(TINY)))]
+    assert estimate_minutes([prepared], tmp_path, 1, {("sac", HOPPER): 1.0}) == 200 / 60
+    run = execute(prepared, tmp_path)
+    ((name, file),) = place.fetched
+    assert name.startswith("batch-") and file == "checkpoint.pt"
+    assert place.landed_names == [name, run.path.name]
