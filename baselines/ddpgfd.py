@@ -24,17 +24,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.common.checkpoint import (
-    due,
-    env_rng_state,
-    load_checkpoint,
-    restore_env_rng,
-    save_checkpoint,
-    stop_if_past,
-)
-from baselines.common.context import DemoSet, EvalPoint, TrainContext
+from baselines.common.checkpoint import OneRunCheckpoints
+from baselines.common.context import DemoSet, TrainContext
 from baselines.common.device import flush_denormals
-from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
+from baselines.common.evaluation import EVAL_SEED_OFFSET
 from baselines.common.networks import QNetwork, mlp, soft_update
 from baselines.common.prioritized import PrioritizedBatch, PrioritizedReplayBuffer
 from baselines.registry import register
@@ -267,32 +260,18 @@ def _train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
     rng = np.random.default_rng(ctx.seed)
     noise_std = config.exploration_noise * (high - low) / 2.0
 
-    curve: list[EvalPoint] = []
-
-    def evaluate_and_record(step: int) -> None:
-        point = EvalPoint(step, tuple(evaluate(eval_env, agent.act, ctx.eval_episodes)))
-        curve.append(point)
-        ctx.on_eval(point)
-
-    resumed = load_checkpoint(ctx.checkpoint_path)
+    run = OneRunCheckpoints(ctx, env, eval_env)
+    resumed = run.resume()
     if resumed is None:
         start = 1
-        evaluate_and_record(0)
+        run.evaluate(0, agent.act)
         obs, _ = env.reset(seed=ctx.seed)
     else:  # taken where an episode had just ended: see baselines.common.checkpoint
         start = resumed["step"] + 1
         agent.load_state_dict(resumed["agent"])
         buffer.load_state_dict(resumed["buffer"])
         rng = resumed["rng"]
-        restore_env_rng(env, resumed["env_rng"])
-        restore_env_rng(eval_env, resumed["eval_env_rng"])
-        ctx.on_resume(resumed["step"])
-        for point in resumed["curve"]:
-            curve.append(point)
-            ctx.on_eval(point)
-        ctx.on_steps(resumed["step"])
         obs, _ = env.reset()
-    last_checkpoint = start - 1
 
     for step in range(start, ctx.total_steps + 1):
         action = np.clip(agent.act(obs) + noise_std * rng.standard_normal(act_dim), low, high)
@@ -310,28 +289,13 @@ def _train(ctx: TrainContext, config: DDPGfDConfig) -> PrioritizedReplayBuffer:
                 raise FloatingPointError(f"DDPGfD diverged at step {step}: losses {losses}")
 
         if step % ctx.eval_interval == 0 or step == ctx.total_steps:
-            evaluate_and_record(step)
+            run.evaluate(step, agent.act)
         ctx.on_steps(1)
         if terminated or truncated:
-            if (
-                ctx.checkpoint_path is not None
-                and step < ctx.total_steps
-                and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline)
-            ):
-                save_checkpoint(
-                    ctx.checkpoint_path,
-                    {
-                        "step": step,
-                        "agent": agent.state_dict(),
-                        "buffer": buffer.state_dict(),
-                        "rng": rng,
-                        "curve": curve,
-                        "env_rng": env_rng_state(env),
-                        "eval_env_rng": env_rng_state(eval_env),
-                    },
-                )
-                last_checkpoint = step
-                stop_if_past(ctx.deadline, step)
+            run.at_episode_end(
+                step,
+                lambda: {"agent": agent.state_dict(), "buffer": buffer.state_dict(), "rng": rng},
+            )
             obs, _ = env.reset()
     env.close()
     eval_env.close()

@@ -28,7 +28,7 @@ from sklearn.mixture import GaussianMixture
 from baselines.common.buffer import ReplayBuffer
 from baselines.common.context import BatchContext, DemoSet
 from baselines.common.networks import mlp
-from baselines.offpolicy import OffPolicyAgent, PolicyExplorer, run_off_policy, seed_device_stream
+from baselines.offpolicy import OffPolicyAgent, PolicyExplorer, train_members
 from baselines.registry import register
 from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
@@ -279,8 +279,7 @@ def guided_explorer(bctx: BatchContext, agent: OffPolicyAgent, configs: list) ->
 
 def _train_guided(bctx: BatchContext, configs: list, agent_cls: type) -> ReplayBuffer:
     agent = agent_cls(bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs)
-    seed_device_stream(bctx)
-    return run_off_policy(bctx, agent, guided_explorer(bctx, agent, configs))
+    return train_members(bctx, agent, lambda built: guided_explorer(bctx, built, configs))
 
 
 @register("drl-eg", DRLEGConfig, needs_demos=True, gpu=True, batchable=True)

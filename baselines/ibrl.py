@@ -39,7 +39,7 @@ from baselines.common.buffer import ReplayBuffer
 from baselines.common.context import BatchContext, DemoSet
 from baselines.common.stacked import StackedReplay, critic_pairs
 from baselines.drl_eg import fit_neural_guider, functional_guider
-from baselines.offpolicy import PolicyExplorer, action_space, run_off_policy, seed_device_stream
+from baselines.offpolicy import PolicyExplorer, action_space, train_members
 from baselines.registry import register
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 
@@ -253,5 +253,4 @@ def train(bctx: BatchContext, configs: list[IBRLConfig]) -> ReplayBuffer:
     agent = IBRLAgent(
         bctx.seeds, env_id, config, imitations, demos if preload else None, bctx.device
     )
-    seed_device_stream(bctx)
-    return run_off_policy(bctx, agent, IBRLExplorer(agent))
+    return train_members(bctx, agent, IBRLExplorer)

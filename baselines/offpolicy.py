@@ -118,8 +118,22 @@ class OffPolicyAgent:
                 noise[k] = torch.randn((rows, self.act_dim), generator=generator)
         return noise
 
-    def _setup_acting(self, cuda_graphs: bool) -> None:
+    def _begin(
+        self, seeds: list[int], env_id: str, config: OffPolicyConfig, device: str
+    ) -> tuple[int, np.ndarray, np.ndarray]:
+        """What every agent sets first: its config, device, members, action size and their
+        noise streams (member k's from seed k + 1); returns the observation size and the
+        action box for building the networks."""
+        self.config, self.device = config, torch.device(device)
+        obs_dim, self.act_dim, low, high = action_space(env_id)
+        self.members = len(seeds)
+        self.generators = [torch.Generator().manual_seed(seed + 1) for seed in seeds]
+        return obs_dim, low, high
+
+    def _ready(self, cuda_graphs: bool) -> None:
+        """After the networks and optimisers: acting and the update (CUDA graphs on a GPU)."""
         self._act_graph = GraphedStep(self._act_body, self.device, cuda_graphs)
+        self._setup_updates(self.config.batch_size, cuda_graphs)
 
     def _act_body(
         self, obs: torch.Tensor, noise: torch.Tensor | None = None
@@ -293,6 +307,16 @@ def evaluate_members(
 
 
 DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the losses on a GPU
+
+
+def train_members(
+    bctx: BatchContext,
+    agent: OffPolicyAgent,
+    explorer: Callable[[OffPolicyAgent], PolicyExplorer] = PolicyExplorer,
+) -> StackedReplay:
+    """Train a built agent's members with ``explorer`` choosing their actions."""
+    seed_device_stream(bctx)  # after the networks: building them reseeds every device
+    return run_off_policy(bctx, agent, explorer(agent))
 
 
 def run_off_policy(

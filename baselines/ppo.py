@@ -21,16 +21,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from baselines.common.checkpoint import (
-    due,
-    env_rng_state,
-    load_checkpoint,
-    restore_env_rng,
-    save_checkpoint,
-    stop_if_past,
-)
-from baselines.common.context import EvalPoint, TrainContext
-from baselines.common.evaluation import EVAL_SEED_OFFSET, evaluate
+from baselines.common.checkpoint import OneRunCheckpoints
+from baselines.common.context import TrainContext
+from baselines.common.evaluation import EVAL_SEED_OFFSET
 from baselines.common.networks import mlp
 from baselines.common.normalization import ReturnScaler, RunningMeanStd
 from baselines.registry import register
@@ -216,19 +209,11 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
     reward_scaler = ReturnScaler(cfg.gamma, cfg.clip_normalized)
     batch_rng = np.random.default_rng(ctx.seed)
     n_rollouts = math.ceil(ctx.total_steps / cfg.rollout_steps)
-    curve: list[EvalPoint] = []
     names = ("obs", "next_obs", "actions", "log_probs", "rewards", "terminated", "over")
-
-    def evaluate_and_record(step: int) -> None:
-        point = EvalPoint(
-            step, tuple(evaluate(eval_env, agent.act_deterministic, ctx.eval_episodes))
-        )
-        curve.append(point)
-        ctx.on_eval(point)
-
-    resumed = load_checkpoint(ctx.checkpoint_path)
+    run = OneRunCheckpoints(ctx, env, eval_env)
+    resumed = run.resume()
     if resumed is None:
-        evaluate_and_record(0)
+        run.evaluate(0, agent.act_deterministic)
         raw_obs, _ = env.reset(seed=ctx.seed)
         step, first_rollout, collected = 0, 0, {name: [] for name in names}
     else:  # taken where an episode had just ended: see baselines.common.checkpoint
@@ -236,16 +221,8 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
         reward_scaler.stats.__dict__.update(resumed["reward_stats"])
         reward_scaler.discounted = resumed["reward_discounted"]
         batch_rng = resumed["batch_rng"]
-        restore_env_rng(env, resumed["env_rng"])
-        restore_env_rng(eval_env, resumed["eval_env_rng"])
-        ctx.on_resume(resumed["step"])
-        for point in resumed["curve"]:
-            curve.append(point)
-            ctx.on_eval(point)
         step, first_rollout, collected = resumed["step"], resumed["rollout"], resumed["collected"]
-        ctx.on_steps(step)
         raw_obs, _ = env.reset()
-    last_checkpoint = step
 
     for rollout in range(first_rollout, n_rollouts):
         if cfg.anneal_learning_rate:
@@ -275,31 +252,21 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
             raw_obs = raw_next
             step += 1
             if step % ctx.eval_interval == 0 and step < ctx.total_steps:
-                evaluate_and_record(step)  # the final one comes after the last update
+                # the final evaluation comes after the last update
+                run.evaluate(step, agent.act_deterministic)
             ctx.on_steps(1)
             if episode_over:
-                if (
-                    ctx.checkpoint_path is not None
-                    and step < ctx.total_steps
-                    and due(step, last_checkpoint, ctx.checkpoint_interval, ctx.deadline)
-                ):
-                    save_checkpoint(
-                        ctx.checkpoint_path,
-                        {
-                            "step": step,
-                            "rollout": rollout,
-                            "collected": collected,
-                            "agent": agent.checkpoint_state(),
-                            "reward_stats": dict(reward_scaler.stats.__dict__),
-                            "reward_discounted": reward_scaler.discounted,
-                            "batch_rng": batch_rng,
-                            "curve": curve,
-                            "env_rng": env_rng_state(env),
-                            "eval_env_rng": env_rng_state(eval_env),
-                        },
-                    )
-                    last_checkpoint = step
-                    stop_if_past(ctx.deadline, step)
+                run.at_episode_end(
+                    step,
+                    lambda: {
+                        "rollout": rollout,
+                        "collected": collected,
+                        "agent": agent.checkpoint_state(),
+                        "reward_stats": dict(reward_scaler.stats.__dict__),
+                        "reward_discounted": reward_scaler.discounted,
+                        "batch_rng": batch_rng,
+                    },
+                )
                 raw_obs, _ = env.reset()
 
         obs_buf, next_obs_buf, act_buf, logp_buf, rew_buf, term_buf, over_buf = (
@@ -345,7 +312,7 @@ def run_ppo(ctx: TrainContext, agent: PPOAgent) -> None:
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), cfg.max_grad_norm, foreach=True)
                 agent.optimizer.step()
-    evaluate_and_record(ctx.total_steps)  # the policy after its last update
+    run.evaluate(ctx.total_steps, agent.act_deterministic)  # the policy after its last update
     env.close()
     eval_env.close()
 

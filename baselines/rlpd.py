@@ -52,7 +52,7 @@ from baselines.common.stacked import (
     layer_norm_mlp,
 )
 from baselines.ibrl import preloaded_buffer
-from baselines.offpolicy import PolicyExplorer, action_space, run_off_policy, seed_device_stream
+from baselines.offpolicy import action_space, train_members
 from baselines.registry import register
 from baselines.sac import frozen
 from baselines.sac_twin_q import CriticEnsemble, TwinQSACAgent, TwinQSACConfig
@@ -276,6 +276,6 @@ def train(bctx: BatchContext, configs: list[RLPDConfig]) -> ReplayBuffer:
     env_id = bctx.shared("env_id")
     obs_dim, act_dim, _, _ = action_space(env_id)
     demo_buffer = preloaded_buffer(demos, obs_dim, act_dim, online_capacity=0)
-    agent = RLPDAgent(bctx.seeds, env_id, configs[0], demo_buffer, bctx.device, bctx.cuda_graphs)
-    seed_device_stream(bctx)
-    return run_off_policy(bctx, agent, PolicyExplorer(agent))
+    return train_members(
+        bctx, RLPDAgent(bctx.seeds, env_id, configs[0], demo_buffer, bctx.device, bctx.cuda_graphs)
+    )

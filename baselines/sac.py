@@ -25,15 +25,7 @@ from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork
 from baselines.common.stacked import StackedMLP, critic_pairs, member_adam, pair_critics
-from baselines.offpolicy import (
-    OffPolicyAgent,
-    OffPolicyConfig,
-    PolicyExplorer,
-    action_space,
-    run_off_policy,
-    seed_device_stream,
-    stack_policies,
-)
+from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
 
 
@@ -111,9 +103,7 @@ class SACAgent(OffPolicyAgent):
         device: str = "cpu",
         cuda_graphs: bool = True,
     ):
-        self.config, self.device = config, torch.device(device)
-        obs_dim, self.act_dim, low, high = action_space(env_id)
-        self.members = len(seeds)
+        obs_dim, low, high = self._begin(seeds, env_id, config, device)
         nets = [SACNetworks.initial(s, obs_dim, self.act_dim, low, high, config) for s in seeds]
         self.critics = pair_critics([n.q1.net for n in nets], [n.q2.net for n in nets]).to(
             self.device
@@ -125,9 +115,7 @@ class SACAgent(OffPolicyAgent):
         self.q_optimizer = member_adam(self.critics.parameters(), lr, self.device)
         self.v_optimizer = member_adam(self.v.parameters(), lr, self.device)
         self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
-        self.generators = [torch.Generator().manual_seed(seed + 1) for seed in seeds]
-        self._setup_acting(cuda_graphs)
-        self._setup_updates(config.batch_size, cuda_graphs)
+        self._ready(cuda_graphs)
 
     MODULES = (
         "critics",
@@ -191,6 +179,6 @@ class SACAgent(OffPolicyAgent):
 @register("sac", SACConfig, gpu=True, batchable=True)
 def train(bctx: BatchContext, configs: list[SACConfig]) -> ReplayBuffer:
     """SAC with a V network (Haarnoja et al. 2018), the paper's baseline and DRL-EG's base."""
-    agent = SACAgent(bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs)
-    seed_device_stream(bctx)
-    return run_off_policy(bctx, agent, PolicyExplorer(agent))
+    return train_members(
+        bctx, SACAgent(bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs)
+    )

@@ -29,15 +29,7 @@ from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
 from baselines.common.networks import TanhGaussianPolicy
 from baselines.common.stacked import StackedMLP, StackedNormMLP, critic_pairs, member_adam
-from baselines.offpolicy import (
-    OffPolicyAgent,
-    OffPolicyConfig,
-    PolicyExplorer,
-    action_space,
-    run_off_policy,
-    seed_device_stream,
-    stack_policies,
-)
+from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
 from baselines.sac import frozen
 
@@ -96,9 +88,7 @@ class TwinQSACAgent(OffPolicyAgent):
         device: str = "cpu",
         cuda_graphs: bool = True,
     ):
-        self.config, self.device = config, torch.device(device)
-        obs_dim, self.act_dim, low, high = action_space(env_id)
-        self.members = len(seeds)
+        obs_dim, low, high = self._begin(seeds, env_id, config, device)
         nets = [self.member_networks(s, obs_dim, self.act_dim, low, high) for s in seeds]
         self.critics = self._stack_ensembles([critics for critics, _ in nets]).to(self.device)
         self.critics_target = copy.deepcopy(self.critics)
@@ -111,9 +101,7 @@ class TwinQSACAgent(OffPolicyAgent):
         self.critic_optimizer = member_adam(self.critics.parameters(), lr, self.device)
         self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
         self.alpha_optimizer = member_adam([self.log_alpha], lr, self.device)
-        self.generators = [torch.Generator().manual_seed(seed + 1) for seed in seeds]
-        self._setup_acting(cuda_graphs)
-        self._setup_updates(config.batch_size, cuda_graphs)
+        self._ready(cuda_graphs)
 
     def member_networks(
         self, seed: int, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
@@ -228,8 +216,7 @@ class TwinQSACAgent(OffPolicyAgent):
 @register("sac-twin-q", TwinQSACConfig, gpu=True, batchable=True)
 def train(bctx: BatchContext, configs: list[TwinQSACConfig]) -> ReplayBuffer:
     """SAC with twin target critics and learned temperature (SB3's SAC), for benches and experts."""
-    agent = TwinQSACAgent(
-        bctx.seeds, bctx.shared("env_id"), configs[0], bctx.device, bctx.cuda_graphs
+    env_id = bctx.shared("env_id")
+    return train_members(
+        bctx, TwinQSACAgent(bctx.seeds, env_id, configs[0], bctx.device, bctx.cuda_graphs)
     )
-    seed_device_stream(bctx)
-    return run_off_policy(bctx, agent, PolicyExplorer(agent))

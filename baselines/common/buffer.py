@@ -47,14 +47,24 @@ class ReplayBuffer:
         next_obs: np.ndarray,
         terminated: bool,
     ) -> None:
-        i = self.position
+        self._write(self.position, obs, action, reward, next_obs, terminated)
+        self.position = (self.position + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def _write(
+        self,
+        i: int,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+    ) -> None:
         self.observations[i] = obs
         self.actions[i] = action
         self.rewards[i] = reward
         self.next_observations[i] = next_obs
         self.terminated[i] = float(terminated)
-        self.position = (i + 1) % self.capacity
-        self.size = min(self.size + 1, self.capacity)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         """Uniform sample with replacement, drawn from ``rng`` only."""
@@ -69,22 +79,27 @@ class ReplayBuffer:
             terminated=torch.from_numpy(self.terminated[idx]),
         )
 
+    ARRAYS: tuple[str, ...] = (
+        "observations",
+        "actions",
+        "rewards",
+        "next_observations",
+        "terminated",
+    )
+
     def state_dict(self) -> dict[str, np.ndarray | int]:
         n = self.size
-        return {
-            "observations": self.observations[:n].copy(),
-            "actions": self.actions[:n].copy(),
-            "rewards": self.rewards[:n].copy(),
-            "next_observations": self.next_observations[:n].copy(),
-            "terminated": self.terminated[:n].copy(),
-            "position": self.position,
+        state: dict[str, np.ndarray | int] = {
+            name: getattr(self, name)[:n].copy() for name in self.ARRAYS
         }
+        state["position"] = self.position
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         n = len(state["rewards"])
         if n > self.capacity:
             raise ValueError(f"saved buffer holds {n} transitions, capacity is {self.capacity}")
-        for name in ("observations", "actions", "rewards", "next_observations", "terminated"):
+        for name in self.ARRAYS:
             getattr(self, name)[:n] = state[name]
         self.size = n
         self.position = int(state["position"])

@@ -11,11 +11,16 @@ from __future__ import annotations
 import copy
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
+
+from baselines.common.context import EvalPoint, TrainContext
+from baselines.common.evaluation import evaluate
 
 
 def env_rng_state(env: gym.Env) -> Any:
@@ -82,3 +87,55 @@ def stop_if_past(deadline: float | None, step: int) -> None:
     """Called just after a checkpoint: stop the run there once its deadline has passed."""
     if past(deadline):
         raise TimeLimitReached(step)
+
+
+class OneRunCheckpoints:
+    """A one-run trainer's evaluations and checkpoints (DDPGfD, PPO): the curve and both envs'
+    random streams are saved with what the trainer adds, at the episode ends that are due,
+    and a resumed run replays its curve to the context before it goes on."""
+
+    def __init__(self, ctx: TrainContext, env: gym.Env, eval_env: gym.Env):
+        self.ctx, self.env, self.eval_env = ctx, env, eval_env
+        self.curve: list[EvalPoint] = []
+        self.last_step = 0  # the step of the latest checkpoint (0: none yet)
+
+    def evaluate(self, step: int, policy: Callable[[np.ndarray], np.ndarray]) -> None:
+        returns = evaluate(self.eval_env, policy, self.ctx.eval_episodes)
+        self._record(EvalPoint(step, tuple(returns)))
+
+    def _record(self, point: EvalPoint) -> None:
+        self.curve.append(point)
+        self.ctx.on_eval(point)
+
+    def resume(self) -> dict[str, Any] | None:
+        """The saved state (the envs' streams restored, the curve replayed), or None."""
+        state = load_checkpoint(self.ctx.checkpoint_path)
+        if state is None:
+            return None
+        restore_env_rng(self.env, state["env_rng"])
+        restore_env_rng(self.eval_env, state["eval_env_rng"])
+        self.ctx.on_resume(state["step"])
+        for point in state["curve"]:
+            self._record(point)
+        self.ctx.on_steps(state["step"])
+        self.last_step = state["step"]
+        return state
+
+    def at_episode_end(self, step: int, trainer_state: Callable[[], dict[str, Any]]) -> None:
+        """Checkpoint here if one is due (then stop if the deadline has passed)."""
+        ctx = self.ctx
+        if (
+            ctx.checkpoint_path is None
+            or step >= ctx.total_steps
+            or not due(step, self.last_step, ctx.checkpoint_interval, ctx.deadline)
+        ):
+            return
+        state = {
+            "step": step,
+            "curve": self.curve,
+            "env_rng": env_rng_state(self.env),
+            "eval_env_rng": env_rng_state(self.eval_env),
+        }
+        save_checkpoint(ctx.checkpoint_path, {**state, **trainer_state()})
+        self.last_step = step
+        stop_if_past(ctx.deadline, step)

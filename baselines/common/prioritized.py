@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from baselines.common.buffer import ReplayBuffer
+
 
 class SumTree:
     """Binary tree whose leaves are priorities and whose inner nodes hold the sums below them."""
@@ -67,27 +69,18 @@ class PrioritizedBatch:
     n_step_discounts: torch.Tensor  # gamma^m, or 0 where the episode terminated within m steps
 
 
-class PrioritizedReplayBuffer:
+class PrioritizedReplayBuffer(ReplayBuffer):
     """Transitions with priorities; demonstrations first and permanent."""
 
+    ARRAYS = (*ReplayBuffer.ARRAYS, "episode_end")
+
     def __init__(self, obs_dim: int, act_dim: int, capacity: int, alpha: float):
-        if capacity <= 0:
-            raise ValueError(f"replay capacity must be positive, got {capacity}")
-        self.capacity, self.alpha = capacity, alpha
-        self.observations = np.zeros((capacity, obs_dim), dtype=np.float32)
-        self.actions = np.zeros((capacity, act_dim), dtype=np.float32)
-        self.rewards = np.zeros(capacity, dtype=np.float32)
-        self.next_observations = np.zeros((capacity, obs_dim), dtype=np.float32)
-        self.terminated = np.zeros(capacity, dtype=np.float32)
+        super().__init__(obs_dim, act_dim, capacity)
+        self.alpha = alpha
         self.episode_end = np.zeros(capacity, dtype=bool)  # terminated or truncated
         self.tree = SumTree(capacity)
         self.max_priority = 1.0
-        self.n_demo = 0
-        self.position = 0  # next agent slot
-        self.size = 0
-
-    def __len__(self) -> int:
-        return self.size
+        self.n_demo = 0  # self.position is the next agent slot
 
     def add_demonstrations(
         self,
@@ -117,7 +110,7 @@ class PrioritizedReplayBuffer:
         self.tree.update(np.arange(n), np.full(n, self.max_priority**self.alpha))
         self.n_demo = self.position = self.size = n
 
-    def add(
+    def add(  # type: ignore[override]  # a truncation ends an n-step return too
         self,
         obs: np.ndarray,
         action: np.ndarray,
@@ -127,46 +120,26 @@ class PrioritizedReplayBuffer:
         truncated: bool,
     ) -> None:
         i = self.position
-        self.observations[i] = obs
-        self.actions[i] = action
-        self.rewards[i] = reward
-        self.next_observations[i] = next_obs
-        self.terminated[i] = float(terminated)
+        self._write(i, obs, action, reward, next_obs, terminated)
         self.episode_end[i] = terminated or truncated
         self.tree.update(np.array([i]), np.array([self.max_priority**self.alpha]))
         agent_slots = self.capacity - self.n_demo
         self.position = self.n_demo + (i + 1 - self.n_demo) % agent_slots
         self.size = min(self.size + 1, self.capacity)
 
-    ARRAYS = (
-        "observations",
-        "actions",
-        "rewards",
-        "next_observations",
-        "terminated",
-        "episode_end",
-    )
-
     def state_dict(self) -> dict:
-        n = self.size
-        state = {name: getattr(self, name)[:n].copy() for name in self.ARRAYS}
+        state = super().state_dict()
         state.update(
-            tree=self.tree.nodes.copy(),
-            max_priority=self.max_priority,
-            n_demo=self.n_demo,
-            position=self.position,
+            tree=self.tree.nodes.copy(), max_priority=self.max_priority, n_demo=self.n_demo
         )
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        n = len(state["rewards"])
-        if n > self.capacity or len(state["tree"]) != len(self.tree.nodes):
+        if len(state["tree"]) != len(self.tree.nodes):
             raise ValueError("saved prioritized buffer does not fit this buffer's capacity")
-        for name in self.ARRAYS:
-            getattr(self, name)[:n] = state[name]
+        super().load_state_dict(state)
         self.tree.nodes[:] = state["tree"]
         self.max_priority, self.n_demo = state["max_priority"], state["n_demo"]
-        self.position, self.size = state["position"], n
 
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
         """Set raw priorities p_i (already including the epsilons); stored as p_i^alpha."""
