@@ -49,6 +49,7 @@ from baselines.common.stacked import (
     StackedReplay,
     StackedSymmetricReplay,
     critic_ensembles,
+    descend,
     layer_norm_mlp,
 )
 from baselines.ibrl import preloaded_buffer
@@ -225,9 +226,7 @@ class RLPDAgent(TwinQSACAgent):
             y = batch.rewards + cfg.gamma * (1.0 - batch.terminated) * next_value
         q = critic_ensembles(self.critics, obs, actions, self.per_member)
         q_losses = (q - y[:, None]).pow(2).mean(dim=(1, 2))  # per member: mean over Q and B
-        self.critic_optimizer.zero_grad()
-        q_losses.sum().backward()
-        self.critic_optimizer.step()
+        descend(self.critic_optimizer, q_losses)
         with torch.no_grad():
             torch._foreach_lerp_(
                 list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
@@ -240,16 +239,12 @@ class RLPDAgent(TwinQSACAgent):
         with frozen(self.critics):
             q_new = critic_ensembles(self.critics, obs, new_actions, self.per_member).mean(dim=1)
         policy_losses = (alpha * log_prob - q_new).mean(-1)
-        self.policy_optimizer.zero_grad()
-        policy_losses.sum().backward()
-        self.policy_optimizer.step()
+        descend(self.policy_optimizer, policy_losses)
 
         # RLPD's temperature loss on alpha itself, each member on its own entropy
         entropy = -log_prob.detach().mean(-1)  # (N,)
         alpha_losses = self.log_alpha.exp() * (entropy - self.target_entropy)
-        self.alpha_optimizer.zero_grad()
-        alpha_losses.sum().backward()
-        self.alpha_optimizer.step()
+        descend(self.alpha_optimizer, alpha_losses)
         return {
             **losses,
             "policy_loss": policy_losses.detach(),

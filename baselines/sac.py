@@ -24,7 +24,7 @@ import torch
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
 from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork
-from baselines.common.stacked import StackedMLP, critic_pairs, member_adam, pair_critics
+from baselines.common.stacked import StackedMLP, critic_pairs, descend, member_adam, pair_critics
 from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
 
@@ -146,9 +146,7 @@ class SACAgent(OffPolicyAgent):
             )
         q = critic_pairs(self.critics, obs, actions)  # (N, 2, B)
         q_losses = 0.5 * (q - y_q[:, None]).pow(2).mean(-1).sum(-1)  # per member
-        self.q_optimizer.zero_grad()
-        q_losses.sum().backward()
-        self.q_optimizer.step()
+        descend(self.q_optimizer, q_losses)
 
         new_actions, log_prob = self.policy.sample(obs, noise=noise)
         with frozen(self.critics):
@@ -157,12 +155,8 @@ class SACAgent(OffPolicyAgent):
             -1
         )
         policy_losses = (log_prob - q_new).mean(-1)
-        self.v_optimizer.zero_grad()
-        v_losses.sum().backward()
-        self.v_optimizer.step()
-        self.policy_optimizer.zero_grad()
-        policy_losses.sum().backward()
-        self.policy_optimizer.step()
+        descend(self.v_optimizer, v_losses)
+        descend(self.policy_optimizer, policy_losses)
 
         with torch.no_grad():
             torch._foreach_lerp_(

@@ -28,7 +28,7 @@ from torch import nn
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
 from baselines.common.networks import TanhGaussianPolicy
-from baselines.common.stacked import StackedMLP, StackedNormMLP, critic_pairs, member_adam
+from baselines.common.stacked import StackedMLP, StackedNormMLP, critic_pairs, descend, member_adam
 from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
 from baselines.sac import frozen
@@ -182,24 +182,18 @@ class TwinQSACAgent(OffPolicyAgent):
         q_losses = 0.5 * (critic_pairs(self.critics, obs, actions) - y[:, None]).pow(2).mean(
             -1
         ).sum(-1)
-        self.critic_optimizer.zero_grad()
-        q_losses.sum().backward()
-        self.critic_optimizer.step()
+        descend(self.critic_optimizer, q_losses)
 
         new_actions, log_prob = self.policy.sample(obs, noise=new_noise)
         with frozen(self.critics):
             q_new = critic_pairs(self.critics, obs, new_actions).min(dim=1).values
         policy_losses = (alpha * log_prob - q_new).mean(-1)
-        self.policy_optimizer.zero_grad()
-        policy_losses.sum().backward()
-        self.policy_optimizer.step()
+        descend(self.policy_optimizer, policy_losses)
 
         alpha_losses = -(self.log_alpha[:, None] * (log_prob.detach() + self.target_entropy)).mean(
             -1
         )
-        self.alpha_optimizer.zero_grad()
-        alpha_losses.sum().backward()
-        self.alpha_optimizer.step()
+        descend(self.alpha_optimizer, alpha_losses)
 
         with torch.no_grad():
             torch._foreach_lerp_(

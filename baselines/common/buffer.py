@@ -47,24 +47,17 @@ class ReplayBuffer:
         next_obs: np.ndarray,
         terminated: bool,
     ) -> None:
-        self._write(self.position, obs, action, reward, next_obs, terminated)
-        self.position = (self.position + 1) % self.capacity
-        self.size = min(self.size + 1, self.capacity)
-
-    def _write(
-        self,
-        i: int,
-        obs: np.ndarray,
-        action: np.ndarray,
-        reward: float,
-        next_obs: np.ndarray,
-        terminated: bool,
-    ) -> None:
+        i = self.position
         self.observations[i] = obs
         self.actions[i] = action
         self.rewards[i] = reward
         self.next_observations[i] = next_obs
         self.terminated[i] = float(terminated)
+        self.position = self._slot_after(i)
+        self.size = min(self.size + 1, self.capacity)
+
+    def _slot_after(self, i: int) -> int:
+        return (i + 1) % self.capacity
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         """Uniform sample with replacement, drawn from ``rng`` only."""

@@ -119,13 +119,12 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         terminated: bool,
         truncated: bool,
     ) -> None:
-        i = self.position
-        self._write(i, obs, action, reward, next_obs, terminated)
-        self.episode_end[i] = terminated or truncated
-        self.tree.update(np.array([i]), np.array([self.max_priority**self.alpha]))
-        agent_slots = self.capacity - self.n_demo
-        self.position = self.n_demo + (i + 1 - self.n_demo) % agent_slots
-        self.size = min(self.size + 1, self.capacity)
+        self.episode_end[self.position] = terminated or truncated
+        self.tree.update(np.array([self.position]), np.array([self.max_priority**self.alpha]))
+        super().add(obs, action, reward, next_obs, terminated)
+
+    def _slot_after(self, i: int) -> int:  # the demonstrations' slots are never overwritten
+        return self.n_demo + (i + 1 - self.n_demo) % (self.capacity - self.n_demo)
 
     def state_dict(self) -> dict:
         state = super().state_dict()

@@ -24,6 +24,14 @@ from baselines.common.networks import TanhGaussianPolicy
 WHOLE_VECTORS = 64
 
 
+def descend(optimizer: torch.optim.Optimizer, member_losses: torch.Tensor) -> None:
+    """One step of ``optimizer`` on the sum of the members' losses (N,): each loss depends
+    on its own member's weights only, so the members' gradients do not mix."""
+    optimizer.zero_grad()
+    member_losses.sum().backward()
+    optimizer.step()
+
+
 def member_adam(
     params: Iterable[torch.Tensor], lr: float, device: torch.device
 ) -> torch.optim.Adam:
