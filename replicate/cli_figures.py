@@ -5,6 +5,7 @@ handlers."""
 from __future__ import annotations
 
 import argparse
+import inspect
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -187,113 +188,46 @@ def _reported(report: Path | None) -> int:
     return 0
 
 
+def _run_figure(run: Callable[..., Path | None], args: argparse.Namespace, **given: Any) -> int:
+    """Call a figure's run function with the command's options: each option reaches the
+    parameter of its name (``--out`` reaches ``out_dir``, ``--env`` ``env_id``); ``given``
+    adds or overrides, and names options that a ``**grid_options`` parameter takes."""
+    options = {**vars(args), "out_dir": args.out, "env_id": getattr(args, "env", None)}
+    named = [p.name for p in inspect.signature(run).parameters.values() if p.kind != p.VAR_KEYWORD]
+    kwargs = {name: options[name] for name in named if name in options}
+    return _reported(run(**{**kwargs, **given}))
+
+
 def _cmd_fig3(args: argparse.Namespace) -> int:
     from replicate.fig3 import run_figure3
-
-    out = args.out or _default_out(args.profile)
-    report = run_figure3(
-        profile=args.profile,
-        seeds=args.seeds,
-        store=args.store,
-        out_dir=out,
-        workers=args.workers,
-        checkpoint_interval=args.checkpoint_interval,
-        executor=args.executor,
-        address=args.address,
-        device=args.device,
-        gpu_workers=args.gpu_workers,
-        batch=args.batch,
-        algos=args.algos,
-        envs=args.envs,
-        dry_run=args.dry_run,
-    )
-    return _reported(report)
-
-
-def _default_out(profile: str) -> Path:
     from replicate.profiles import report_dir
 
-    return report_dir(profile, "fig3")
+    return _run_figure(run_figure3, args, out_dir=args.out or report_dir(args.profile, "fig3"))
 
 
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from replicate.fig4 import run_figure4
 
-    report = run_figure4(
-        profile=args.profile,
-        env_id=args.env,
-        seeds=args.seeds,
-        store=args.store,
-        out_dir=args.out,
-        workers=args.workers,
-        executor=args.executor,
-        address=args.address,
-        device=args.device,
-        gpu_workers=args.gpu_workers,
-        batch=args.batch,
-        checkpoint_interval=args.checkpoint_interval,
-        dry_run=args.dry_run,
-    )
-    return _reported(report)
+    return _run_figure(run_figure4, args)
 
 
 def _cmd_ablate(args: argparse.Namespace) -> int:
     from replicate.ablation import run_threshold_ablation
 
-    report = run_threshold_ablation(
-        profile=args.profile,
-        seeds=args.seeds,
-        store=args.store,
-        out_dir=args.out,
-        storage=args.storage,
-        workers=args.workers,
-        thresholds=args.thresholds,
-        sigmas=args.sigmas,
-        executor=args.executor,
-        address=args.address,
-        device=args.device,
-        gpu_workers=args.gpu_workers,
-        batch=args.batch,
-        env_id=args.env,
-        checkpoint_interval=args.checkpoint_interval,
-        dry_run=args.dry_run,
-    )
-    return _reported(report)
+    return _run_figure(run_threshold_ablation, args)
 
 
 def _cmd_rlfd(args: argparse.Namespace) -> int:
     from replicate.rlfd import run_rlfd
 
-    report = run_rlfd(
-        profile=args.profile,
-        seeds=args.seeds,
-        store=args.store,
-        out_dir=args.out,
-        workers=args.workers,
-        checkpoint_interval=args.checkpoint_interval,
-        device=args.device,
-        batch=args.batch,
-        algos=args.algos,
-        envs=args.envs,
-        dry_run=args.dry_run,
-    )
-    return _reported(report)
+    return _run_figure(run_rlfd, args)
 
 
 def _cmd_random_start(args: argparse.Namespace) -> int:
     from replicate.random_start import run_random_start
 
-    report = run_random_start(
-        profile=args.profile,
-        store=args.store,
-        out_dir=args.out,
-        dry_run=args.dry_run,
-        workers=args.workers,
-        checkpoint_interval=args.checkpoint_interval,
-        device=args.device,
-        batch=args.batch,
-    )
-    return _reported(report)
+    grid = ("workers", "checkpoint_interval", "device", "batch")
+    return _run_figure(run_random_start, args, **{name: getattr(args, name) for name in grid})
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
