@@ -21,10 +21,7 @@ older one), and has it removed when the batch lands, never when it fails.
 
 from __future__ import annotations
 
-import hashlib
-import io
 import json
-import lzma
 import os
 import shutil
 import time
@@ -37,13 +34,17 @@ from typing import Any
 import numpy as np
 
 from replicate import checkpoint_places, provenance
+from replicate.carry_format import (
+    read_state,
+    regenerate_batch_replay,
+    sha256,
+    write_state,
+)
 from replicate.checkpoint_places import CHECKPOINT_FILE, KeptCheckpoint
 from replicate.errors import HarnessError
 
 CARRY_DIR = "carry"
 FORMAT = 1
-STATE_FILE = "state.pt.xz"
-ACTIONS_FILE = "actions-{}.npy.xz"  # member k's actions
 MANIFEST_FILE = "manifest.json"
 RUN_FILES = ("spec.json", "curve.csv", "sittings.json")  # what a run directory has mid-training
 BATCH_FILES = ("sittings.json", "members.json")
@@ -63,94 +64,6 @@ class Packed:
 
 def carry_root(store: Path) -> Path:
     return Path(store) / CARRY_DIR
-
-
-def _sha256(array: np.ndarray) -> str:
-    return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
-
-
-# -- rebuilding a replay from its actions -------------------------------------------------
-
-
-def _steps(count: int, what: str, progress: bool) -> Any:
-    from tqdm import tqdm
-
-    return tqdm(
-        range(count),
-        desc=f"rebuilding {what}",
-        unit="step",
-        leave=False,
-        mininterval=1.0,
-        disable=not progress,
-        dynamic_ncols=True,
-    )
-
-
-def regenerate_batch_replay(
-    env_id: str, seeds: list[int], actions: np.ndarray, progress: bool = False
-) -> tuple[np.ndarray, list[Any], np.ndarray]:
-    """The stacked replay rows (members, steps, 2 obs + act + 2) that a seed batch's envs
-    produce when stepped through ``actions`` (members, steps, act_dim) from their seeds, as
-    ``baselines.offpolicy.run_off_policy`` steps them (every member alive); with the
-    envs' snapshot and observations where the actions leave them."""
-    import torch
-
-    from baselines.common.stacked import StackedReplay
-    from envs.vector import EnvBatch
-
-    n, steps, act_dim = actions.shape
-    envs = EnvBatch(env_id, seeds)
-    try:
-        replay = StackedReplay(n, envs.obs_dim, act_dim, max(steps, 1), torch.device("cpu"))
-        obs = envs.reset(seeds=seeds)
-        for t in _steps(steps, f"{env_id} seeds {seeds}", progress):
-            result = envs.step(actions[:, t])
-            replay.add(obs, actions[:, t], result.rewards, result.next_obs, result.terminated)
-            obs = result.obs
-        snapshot = envs.snapshot()
-    finally:
-        envs.close()
-    return replay.data[:, :steps].numpy(), snapshot, obs
-
-
-# -- packing ------------------------------------------------------------------------------
-
-
-def _write_xz(path: Path, payload: bytes) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_bytes(lzma.compress(payload, preset=6))
-    os.replace(tmp, path)
-
-
-def _write_state(target: Path, state: dict[str, Any], actions: np.ndarray) -> None:
-    """The checkpoint without its replay, and each member's actions in a file of its own
-    (a paper-budget member's are 32 MB; one file per member keeps every file small)."""
-    import torch
-
-    raw = io.BytesIO()
-    torch.save(state, raw)
-    _write_xz(target / STATE_FILE, raw.getvalue())
-    for k, member_actions in enumerate(actions):
-        raw = io.BytesIO()
-        np.save(raw, np.ascontiguousarray(member_actions, dtype=np.float32))
-        _write_xz(target / ACTIONS_FILE.format(k), raw.getvalue())
-
-
-def _read_state(path: Path, members: int) -> tuple[dict[str, Any], np.ndarray]:
-    import torch
-
-    state = torch.load(
-        io.BytesIO(lzma.decompress((path / STATE_FILE).read_bytes())),
-        weights_only=False,
-        map_location="cpu",
-    )
-    actions = np.stack(
-        [
-            np.load(io.BytesIO(lzma.decompress((path / ACTIONS_FILE.format(k)).read_bytes())))
-            for k in range(members)
-        ]
-    )
-    return state, actions
 
 
 def _run_spec(work_dir: Path) -> dict[str, Any]:
@@ -295,14 +208,14 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
     carried_state["buffer"] = {"position": checkpoint["buffer"]["position"]}
 
     def build(target: Path) -> None:
-        _write_state(target, carried_state, actions)
+        write_state(target, carried_state, actions)
         _copy_files(batch_dir, target / "batch", ("sittings.json",))
         (target / "batch" / "members.json").write_text(json.dumps(members) + "\n")
         for run_id, work in zip(members, work_dirs):
             _copy_files(work, target / "partial" / run_id, RUN_FILES)
         (target / MANIFEST_FILE).write_text(
             json.dumps(
-                _manifest("batch", ident, env_id, step, members, seeds, _sha256(data)), indent=1
+                _manifest("batch", ident, env_id, step, members, seeds, sha256(data)), indent=1
             )
             + "\n"
         )
@@ -410,7 +323,7 @@ def _load_carried(path: Path, kind: str) -> tuple[dict[str, Any], dict[str, Any]
             f"{path} is not a carried {kind} of format {FORMAT}",
             f"delete {path} to start the {kind} over",
         )
-    state, actions = _read_state(path, len(manifest["members"]))
+    state, actions = read_state(path, len(manifest["members"]))
     return manifest, state, actions
 
 
@@ -460,7 +373,7 @@ def unpack_batch(store: Path, ident: str) -> bool:
 
     manifest, state, actions = _load_carried(path, "batch")
     data, envs, obs = regenerate_batch_replay(manifest["env_id"], manifest["seeds"], actions)
-    replay = _check_rebuilt(path, manifest, _sha256(data))
+    replay = _check_rebuilt(path, manifest, sha256(data))
     if replay != "rebuilt bit for bit":  # the envs go on from where they stepped here
         state["envs"], state["obs"] = envs, obs
     state["buffer"] = {"data": torch.from_numpy(data), "position": state["buffer"]["position"]}
