@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from replicate import cli_figures, cli_runs
-from replicate.cli_options import TIME_LIMIT_EXIT
+from replicate.cli_options import TIME_LIMIT_EXIT, Command
 
 # The committed run store; smoke-profile runs (numbers that mean nothing) go to their own.
 DEFAULT_STORE = Path("runs")
@@ -72,48 +72,42 @@ def default_store(profile: str | None) -> Path:
     return SMOKE_STORE if profile == "smoke" else DEFAULT_STORE
 
 
-# Every subcommand, in the order ``--help`` lists them.
-SUBCOMMANDS = (
-    cli_runs.TRAIN,
-    cli_runs.DEMOS,
-    cli_runs.EXPERT,
-    cli_figures.FIG3,
-    cli_figures.FIG4,
-    cli_figures.ABLATE_THRESHOLD,
-    cli_figures.COMPARE_RLFD,
-    cli_figures.RANDOM_START,
-    cli_figures.REPORT,
-    cli_figures.TABLE1,
-    cli_runs.CARRY,
-    cli_runs.ALGOS,
-    cli_runs.ENVS,
-)
+def subcommands() -> list[Command]:
+    """Every subcommand, in the order ``--help`` lists them: the figures' own from the
+    figure registry (``replicate.figure_registry``)."""
+    from replicate.figure_registry import figure_commands
+
+    return [
+        cli_runs.TRAIN,
+        cli_runs.DEMOS,
+        cli_runs.EXPERT,
+        *figure_commands(),
+        cli_figures.REPORT,
+        cli_figures.TABLE1,
+        cli_runs.CARRY,
+        cli_runs.ALGOS,
+        cli_runs.ENVS,
+    ]
 
 
-def _build_parser() -> argparse.ArgumentParser:
+def _build_parser(commands: list[Command]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m replicate",
         description="Replication harness for DRL-EG (SAC with demonstration-guided exploration).",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for command in SUBCOMMANDS:
+    for command in commands:
         command.declare(sub)
     return parser
 
 
-COMMANDS = {command.name: command.run for command in SUBCOMMANDS}
-
-
-FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd", "table1", "random-start")
-
-
-def _refreshing_front_door(args: argparse.Namespace, code: int) -> int:
+def _refreshing_front_door(args: argparse.Namespace, code: int, writes_report: set[str]) -> int:
     """After a figure command wrote into reports/ (no --out, a profile that means
     something), refresh the front door reports/index.html from the reports there."""
     if (
         code == 0
         and not getattr(args, "dry_run", False)  # a dry run writes nothing
-        and args.command in FIGURE_COMMANDS
+        and args.command in writes_report
         and getattr(args, "out", None) is None
         and getattr(args, "profile", "quick") != "smoke"
         and Path("reports").is_dir()
@@ -128,17 +122,22 @@ def main(argv: list[str] | None = None) -> int:
     from replicate.errors import HarnessError, TimeLimitStop
 
     argv = _joined_time_limit(sys.argv[1:] if argv is None else list(argv))
-    args = _build_parser().parse_args(argv)
+    commands = subcommands()
+    args = _build_parser(commands).parse_args(argv)
+    run = {command.name: command.run for command in commands}[args.command]
+    from replicate.figure_registry import figure_commands
+
+    writes_report = {command.name for command in figure_commands()} | {"table1"}
     if getattr(args, "store", "absent") is None:
         args.store = default_store(getattr(args, "profile", None))
     try:
         if getattr(args, "time_limit", None) is None:
-            return _refreshing_front_door(args, COMMANDS[args.command](args))
+            return _refreshing_front_door(args, run(args), writes_report)
         limit = parse_time_limit(args.time_limit)  # before anything is trained
         from replicate.experiments import time_limit
 
         with time_limit(time.time() + limit):
-            return _refreshing_front_door(args, COMMANDS[args.command](args))
+            return _refreshing_front_door(args, run(args), writes_report)
     except TimeLimitStop as stop:
         print(
             f"time limit reached ({args.time_limit}): {stop}; run the same command again "

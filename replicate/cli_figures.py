@@ -118,24 +118,6 @@ def _declare_rlfd(sub: Any) -> None:
     )
 
 
-def _declare_random_start(sub: Any) -> None:
-    start = sub.add_parser(
-        "random-start",
-        help="SAC with the SAC authors' random start against today's start",
-        description="Train SAC on HalfCheetah-v5 and Ant-v5 with 10,000 uniform-random "
-        "start steps, from the seeds of the profile's Fig. 3 SAC runs (only runs missing "
-        "from the store), and write reports/<profile>/random-start/index.html: each env's "
-        "paired difference in final return and area under the curve.",
-        formatter_class=HelpFormatter,
-    )
-    add_grid_arguments(
-        start,
-        "report directory (default: reports/<profile>/random-start)",
-        profile_default="reduced",
-        seeds_help=None,
-    )
-
-
 def _declare_report(sub: Any) -> None:
     report = sub.add_parser(
         "report",
@@ -188,7 +170,7 @@ def _reported(report: Path | None) -> int:
     return 0
 
 
-def _run_figure(run: Callable[..., Path | None], args: argparse.Namespace, **given: Any) -> int:
+def run_figure(run: Callable[..., Path | None], args: argparse.Namespace, **given: Any) -> int:
     """Call a figure's run function with the command's options: each option reaches the
     parameter of its name (``--out`` reaches ``out_dir``, ``--env`` ``env_id``); ``given``
     adds or overrides, and names options that a ``**grid_options`` parameter takes."""
@@ -202,32 +184,25 @@ def _cmd_fig3(args: argparse.Namespace) -> int:
     from replicate.fig3 import run_figure3
     from replicate.profiles import report_dir
 
-    return _run_figure(run_figure3, args, out_dir=args.out or report_dir(args.profile, "fig3"))
+    return run_figure(run_figure3, args, out_dir=args.out or report_dir(args.profile, "fig3"))
 
 
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from replicate.fig4 import run_figure4
 
-    return _run_figure(run_figure4, args)
+    return run_figure(run_figure4, args)
 
 
 def _cmd_ablate(args: argparse.Namespace) -> int:
     from replicate.ablation import run_threshold_ablation
 
-    return _run_figure(run_threshold_ablation, args)
+    return run_figure(run_threshold_ablation, args)
 
 
 def _cmd_rlfd(args: argparse.Namespace) -> int:
     from replicate.rlfd import run_rlfd
 
-    return _run_figure(run_rlfd, args)
-
-
-def _cmd_random_start(args: argparse.Namespace) -> int:
-    from replicate.random_start import run_random_start
-
-    grid = ("workers", "checkpoint_interval", "device", "batch")
-    return _run_figure(run_random_start, args, **{name: getattr(args, name) for name in grid})
+    return run_figure(run_rlfd, args)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -298,6 +273,5 @@ FIG3 = Command("fig3", _declare_fig3, _cmd_fig3)
 FIG4 = Command("fig4", _declare_fig4, _cmd_fig4)
 ABLATE_THRESHOLD = Command("ablate-threshold", _declare_ablate, _cmd_ablate)
 COMPARE_RLFD = Command("compare-rlfd", _declare_rlfd, _cmd_rlfd)
-RANDOM_START = Command("random-start", _declare_random_start, _cmd_random_start)
 REPORT = Command("report", _declare_report, _cmd_report)
 TABLE1 = Command("table1", _declare_table1, _cmd_table1)

@@ -1,7 +1,8 @@
 """Every report the harness writes under reports/<profile>/, in one registry: its directory
-name, how it is rebuilt from the run store, and how the front door describes it. `nox -s
-report` and the front door loop over it; a new figure is one module that calls
-``register`` (listed in ``FIGURE_MODULES``) and one template.
+name, how it is rebuilt from the run store, how the front door describes it and the
+command that trains its grid. `nox -s report`, the front door and the command line loop
+over it; a new figure is one module that calls ``register`` (listed in
+``FIGURE_MODULES``) and one template.
 """
 
 from __future__ import annotations
@@ -10,7 +11,10 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from replicate.cli_options import Command
 
 # Modules that register a figure of their own (the built-in ones are declared below, their
 # writers imported only when a report is rebuilt, so the front door stays light).
@@ -22,11 +26,14 @@ class FigureReport:
     """One report: ``rebuild(profile, store, out_dir, seeds)`` writes it from the runs in the
     store and returns its index (None: the store holds none of its runs, nothing is written;
     ``seeds``: how many seeds a grid report covers, None for the profile's);
-    ``describe(summary)`` gives the front door's 'covers', 'budget' and 'seeds' words."""
+    ``describe(summary)`` gives the front door's 'covers', 'budget' and 'seeds' words;
+    ``command``, where the figure trains a grid of its own, its ``python -m replicate``
+    subcommand (reports that share one command name it once)."""
 
     name: str  # its directory under reports/ (quick) or reports/<profile>/
     rebuild: Callable[[str, Path, Path, int | None], Path | None]
     describe: Callable[[dict[str, Any]], dict[str, str]]
+    command: Command | None = None
 
 
 _FIGURES: dict[str, FigureReport] = {}
@@ -42,6 +49,12 @@ def figures() -> dict[str, FigureReport]:
     for module in FIGURE_MODULES:
         importlib.import_module(module)
     return dict(_FIGURES)
+
+
+def figure_commands() -> list[Command]:
+    """The subcommands of the registered figures, in the registry's order."""
+    commands = (figure.command for figure in figures().values() if figure.command is not None)
+    return list({command.name: command for command in commands}.values())
 
 
 def steps_words(n: int) -> str:
@@ -136,12 +149,20 @@ def _describe_ablation(summary: dict[str, Any]) -> dict[str, str]:
     }
 
 
-register(FigureReport("fig3", _fig3, _describe_fig3))
-register(FigureReport("fig4", _fig4, _describe_fig4))
-register(FigureReport("rlfd", _rlfd, _describe_rlfd))
-for _name, _env in (
-    ("ablate-threshold", "MountainCarContinuous-v0"),
-    ("ablate-threshold-ant", "Ant-v5"),
-    ("ablate-threshold-walker2d", "Walker2d-v5"),
-):
-    register(FigureReport(_name, _ablation(_env), _describe_ablation))
+def _register_built_in() -> None:
+    from replicate import cli_figures
+
+    register(FigureReport("fig3", _fig3, _describe_fig3, cli_figures.FIG3))
+    register(FigureReport("fig4", _fig4, _describe_fig4, cli_figures.FIG4))
+    register(FigureReport("rlfd", _rlfd, _describe_rlfd, cli_figures.COMPARE_RLFD))
+    for name, env in (
+        ("ablate-threshold", "MountainCarContinuous-v0"),
+        ("ablate-threshold-ant", "Ant-v5"),
+        ("ablate-threshold-walker2d", "Walker2d-v5"),
+    ):
+        register(
+            FigureReport(name, _ablation(env), _describe_ablation, cli_figures.ABLATE_THRESHOLD)
+        )
+
+
+_register_built_in()

@@ -6,6 +6,7 @@ the report gives each env's paired difference in final return and area under the
 
 from __future__ import annotations
 
+import argparse
 import base64
 from datetime import datetime, timezone
 from pathlib import Path
@@ -13,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from replicate.cli_figures import run_figure
+from replicate.cli_options import Command, HelpFormatter, add_grid_arguments
 from replicate.figure_registry import FigureReport, budget_words, register, seed_words
 from replicate.profiles import BUDGETS, PROFILES, GridOutcome, report_dir
 from replicate.spec import RunSpec
@@ -196,4 +199,30 @@ def describe(summary: dict[str, Any]) -> dict[str, str]:
     }
 
 
-register(FigureReport(NAME, rebuild, describe))
+# the command that trains the comparison and writes its report
+
+
+def _declare_command(sub: Any) -> None:
+    start = sub.add_parser(
+        "random-start",
+        help="SAC with the SAC authors' random start against today's start",
+        description="Train SAC on HalfCheetah-v5 and Ant-v5 with 10,000 uniform-random "
+        "start steps, from the seeds of the profile's Fig. 3 SAC runs (only runs missing "
+        "from the store), and write reports/<profile>/random-start/index.html: each env's "
+        "paired difference in final return and area under the curve.",
+        formatter_class=HelpFormatter,
+    )
+    add_grid_arguments(
+        start,
+        "report directory (default: reports/<profile>/random-start)",
+        profile_default="reduced",
+        seeds_help=None,
+    )
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    grid = ("workers", "checkpoint_interval", "device", "batch")
+    return run_figure(run_random_start, args, **{name: getattr(args, name) for name in grid})
+
+
+register(FigureReport(NAME, rebuild, describe, Command(NAME, _declare_command, _run_command)))

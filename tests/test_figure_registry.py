@@ -40,3 +40,33 @@ def test_the_guided_share_plug_in_rebuilds_from_a_store_and_joins_the_front_door
     page = write_front_door(reports).read_text()
     assert "How often DRL-EG&#39;s guider acts over training" in page
     assert figures()["guided-share"].rebuild("quick", tmp_path / "empty", out, None) is None
+
+
+def test_the_command_line_takes_each_figures_command_from_the_registry(
+    monkeypatch, capsys, tmp_path
+):
+    import argparse
+
+    from replicate import cli, figure_registry
+    from replicate.cli_options import Command
+    from replicate.figure_registry import FigureReport, figure_commands
+
+    names = [command.name for command in figure_commands()]
+    assert names == ["fig3", "fig4", "compare-rlfd", "ablate-threshold", "random-start"]
+
+    def declare(sub: argparse._SubParsersAction) -> None:
+        sub.add_parser("my-figure", help="a figure registered by a plug-in")
+
+    def run(args: argparse.Namespace) -> int:
+        print("my figure ran")
+        return 0
+
+    plug_in = FigureReport(
+        "my-figure", lambda *a: None, lambda s: {}, Command("my-figure", declare, run)
+    )
+    monkeypatch.setitem(figure_registry._FIGURES, "my-figure", plug_in)
+    monkeypatch.chdir(tmp_path)  # the front door it refreshes is this directory's
+    (tmp_path / "reports").mkdir()
+    assert cli.main(["my-figure"]) == 0
+    assert "my figure ran" in capsys.readouterr().out
+    assert (tmp_path / "reports" / "index.html").is_file()  # a figure command refreshes it
