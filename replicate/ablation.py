@@ -37,10 +37,10 @@ from replicate.ablation_grid import (
 from replicate.ablation_report import write_ablation_report
 from replicate.drl_eg_settings import DEFAULT_GUIDE_NOISE_STD, T2_RULE_SETTINGS
 from replicate.errors import HarnessError
-from replicate.experiments import run_grid
+from replicate.experiments import GridOptions, run_grid
 from replicate.grids import stored_runs
 from replicate.profiles import GridOutcome, get_profile, report_dir
-from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, prepare
+from replicate.runner import prepare
 from replicate.stats import stratified_bootstrap_ci
 
 RULE_PROFILE = "reduced"  # the budget whose ablation fixes the MuJoCo rule
@@ -150,17 +150,10 @@ def run_threshold_ablation(
     store: Path = Path("runs"),
     out_dir: Path | None = None,
     storage: str | None = None,
-    workers: int | None = None,
     thresholds: list[float] | None = None,
     sigmas: list[float] | None = None,
     env_id: str = ABLATION_ENV,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
-    dry_run: bool = False,
+    options: GridOptions = GridOptions(),
 ) -> Path | None:
     """Run (or finish) the sweep and write its report; return the report's path (None with
     ``dry_run``: print what would train, from one machine, and touch nothing)."""
@@ -178,25 +171,14 @@ def run_threshold_ablation(
     if any(t < 0 for t in grid_t2) or any(s < 0 for s in grid_sigma):
         raise HarnessError("thresholds and sigmas must be >= 0", "pass values like 0 0.05 0.2")
     store = Path(store)
-    if dry_run:
+    if options.dry_run:
         everything = sac_specs(chosen, env_id, n_seeds) + [
             spec
             for threshold in grid_t2
             for sigma in grid_sigma
             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
         ]
-        run_grid(
-            everything,
-            store,
-            workers,
-            checkpoint_interval,
-            executor,
-            address,
-            device,
-            gpu_workers,
-            batch,
-            dry_run=True,
-        )
+        run_grid(everything, store, options)
         return None
     import optuna
 
@@ -225,17 +207,7 @@ def run_threshold_ablation(
             for spec in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
         ]
     )
-    trained = run_grid(
-        sac + sweep,
-        store,
-        workers,
-        checkpoint_interval,
-        executor,
-        address,
-        device,
-        gpu_workers,
-        batch,
-    )
+    trained = run_grid(sac + sweep, store, options)
     failed = list(trained.failed)
     failed_ids = {run_id for run_id, _ in failed}
     sac_ids = {prepare(spec).run_id for spec in sac}
@@ -249,17 +221,7 @@ def run_threshold_ablation(
             for s in ablation_specs(chosen, env_id, threshold, sigma, n_seeds)
             if prepare(s).run_id not in failed_ids
         ]  # a failure is not retrained at once
-        outcome = run_grid(
-            specs,
-            store,
-            workers,
-            checkpoint_interval,
-            executor,
-            address,
-            device,
-            gpu_workers,
-            batch,
-        )
+        outcome = run_grid(specs, store, options)
         failed.extend(outcome.failed)
         if not outcome.runs:
             raise HarnessError(

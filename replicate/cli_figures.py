@@ -5,6 +5,7 @@ handlers."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import inspect
 from collections.abc import Callable
 from pathlib import Path
@@ -171,13 +172,16 @@ def _reported(report: Path | None) -> int:
 
 
 def run_figure(run: Callable[..., Path | None], args: argparse.Namespace, **given: Any) -> int:
-    """Call a figure's run function with the command's options: each option reaches the
-    parameter of its name (``--out`` reaches ``out_dir``, ``--env`` ``env_id``); ``given``
-    adds or overrides, and names options that a ``**grid_options`` parameter takes."""
-    options = {**vars(args), "out_dir": args.out, "env_id": getattr(args, "env", None)}
-    named = [p.name for p in inspect.signature(run).parameters.values() if p.kind != p.VAR_KEYWORD]
-    kwargs = {name: options[name] for name in named if name in options}
-    return _reported(run(**{**kwargs, **given}))
+    """Call a figure's run function with the command's options: the grid options as one
+    ``GridOptions``, every other option to the parameter of its name (``--out`` reaches
+    ``out_dir``, ``--env`` ``env_id``); ``given`` adds or overrides."""
+    from replicate.experiments import GridOptions
+
+    grid = {f.name for f in dataclasses.fields(GridOptions)}
+    options = GridOptions(**{name: value for name, value in vars(args).items() if name in grid})
+    named = {**vars(args), "out_dir": args.out, "env_id": getattr(args, "env", None)}
+    kwargs = {p: named[p] for p in inspect.signature(run).parameters if p in named}
+    return _reported(run(**{**kwargs, "options": options, **given}))
 
 
 def _cmd_fig3(args: argparse.Namespace) -> int:

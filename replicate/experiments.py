@@ -10,6 +10,7 @@ import os
 import queue
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -135,26 +136,33 @@ def _worker(
 EXECUTORS = ("local", "ray")
 
 
+@dataclass(frozen=True)
+class GridOptions:
+    """How a grid trains: where, how many at once, how often it checkpoints, whether it only
+    prints its plan. A figure passes it to ``run_grid`` unread; the command line fills it
+    from the grid options every figure command shares (``cli_options.add_grid_arguments``)."""
+
+    workers: int | None = None
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL
+    executor: str = "local"
+    address: str | None = None
+    device: str = "auto"
+    gpu_workers: int | None = None
+    batch: int | None = None
+    env_workers: int | None = None
+    dry_run: bool = False
+    deadline: float | None = None
+
+
 def run_grid(
-    specs: list[RunSpec],
-    store: Path,
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
-    env_workers: int | None = None,
-    dry_run: bool = False,
-    deadline: float | None = None,
+    specs: list[RunSpec], store: Path, options: GridOptions = GridOptions()
 ) -> GridOutcome:
     """Train every spec missing from the store with one progress display: in local
     processes (one per core by default), or as tasks on an existing Ray cluster.
-    ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the algorithms
-    with a GPU path; the others always train on CPU. ``gpu_workers`` (with ``auto``) keeps
-    only that many local workers on the GPU: see ``worker_devices``. On Ray, ``auto`` trains
-    on CPUs; ``cuda`` is refused there.
+    ``device``: ``auto`` (the GPU when there is one), ``cpu`` or ``cuda``, for the
+    algorithms with a GPU path; the others always train on CPU. ``gpu_workers`` (with
+    ``auto``) keeps only that many local workers on the GPU: see ``worker_devices``. On Ray,
+    ``auto`` trains on CPUs; ``cuda`` is refused there.
 
     ``batch``: runs that differ only in seed train together, up to this many per process
     (``baselines.offpolicy``); on a GPU they do by default, as many as fit. ``env_workers``:
@@ -163,7 +171,14 @@ def run_grid(
     ``deadline`` (a ``time.time()``; default: the one ``time_limit`` set): finished runs are
     kept, running ones checkpoint and stop, the rest do not start, and ``TimeLimitStop``
     is raised with the counts once the workers are done."""
-    deadline = _deadline if deadline is None else deadline
+    workers, device, batch, executor = (
+        options.workers,
+        options.device,
+        options.batch,
+        options.executor,
+    )
+    gpu_workers, env_workers = options.gpu_workers, options.env_workers
+    deadline = _deadline if options.deadline is None else options.deadline
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
     if executor == "local":
@@ -183,7 +198,7 @@ def run_grid(
             raise HarnessError(
                 "--batch is not supported with --executor ray", "drop --batch, or train locally"
             )
-    if dry_run:
+    if options.dry_run:
         resolve_batch(batch, missing, "cpu")  # its input checks, without touching a GPU
         print_plan(
             prepared,
@@ -200,7 +215,15 @@ def run_grid(
             prepared,
             missing,
             store,
-            *run_on_ray(prepared, missing, store, address, checkpoint_interval, "cpu", deadline),
+            *run_on_ray(
+                prepared,
+                missing,
+                store,
+                options.address,
+                options.checkpoint_interval,
+                "cpu",
+                deadline,
+            ),
         )
     try:  # at most this many batches share the GPU at once
         gpu_slots = worker_devices(device, workers or os.cpu_count() or 1, gpu_workers).count(
@@ -262,7 +285,7 @@ def run_grid(
                         _worker,
                         task,
                         str(store),
-                        checkpoint_interval,
+                        options.checkpoint_interval,
                         device == "auto",
                         env_workers,
                         deadline,

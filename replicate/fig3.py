@@ -17,6 +17,7 @@ from replicate import provenance
 from replicate.checks import Group
 from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
+from replicate.experiments import GridOptions
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile, get_profile
@@ -35,7 +36,6 @@ from replicate.report import (
     summary_bytes,
     threats_to_validity,
 )
-from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL
 from replicate.spec import RunSpec
 from replicate.stats import (
     CONFIDENCE,
@@ -100,20 +100,14 @@ def run_figure3(
     seeds: int | None = None,
     store: Path = Path("runs"),
     out_dir: Path = Path("reports/fig3"),
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
     algos: list[str] | None = None,
     envs: list[str] | None = None,
-    dry_run: bool = False,
+    options: GridOptions = GridOptions(),
 ) -> Path | None:
     """Train the Fig. 3 grid (what is missing; only the cells of ``algos`` x ``envs`` when
     given) and write its HTML report from every run of the grid in the store; return its
-    path. ``dry_run``: print what would train, train and write nothing, return None."""
+    path. A dry run (``options.dry_run``) prints what would train, trains and writes
+    nothing, and returns None."""
     chosen = get_profile(profile)
     specs, skipped = figure3_grid(chosen, seeds)
     return train_and_report(
@@ -132,14 +126,7 @@ def run_figure3(
         ),
         algos,
         envs,
-        dry_run,
-        workers=workers,
-        checkpoint_interval=checkpoint_interval,
-        executor=executor,
-        address=address,
-        device=device,
-        gpu_workers=gpu_workers,
-        batch=batch,
+        options,
     )
 
 

@@ -20,6 +20,7 @@ from replicate.drl_eg_settings import (
     waits_for_t2_rule,
 )
 from replicate.errors import HarnessError
+from replicate.experiments import GridOptions
 from replicate.grids import (
     algorithm_overrides,
     stored_outcome,
@@ -36,7 +37,6 @@ from replicate.report import (
     summary_bytes,
     threats_to_validity,
 )
-from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL
 from replicate.spec import RunSpec
 from replicate.stats import CONFIDENCE, paired_mean_difference
 from replicate.store import Run
@@ -127,18 +127,11 @@ def run_figure4(
     seeds: int | None = None,
     store: Path = Path("runs"),
     out_dir: Path | None = None,
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    executor: str = "local",
-    address: str | None = None,
-    device: str = "auto",
-    gpu_workers: int | None = None,
-    batch: int | None = None,
-    dry_run: bool = False,
+    options: GridOptions = GridOptions(),
 ) -> Path | None:
     """Train what Fig. 4 lacks and write its report; one that names runs the store lacks is
     replaced only by one naming as many (``report.write_unless_fewer``). Returns the
-    report's path (None: nothing written, as with ``dry_run``, which prints what would
+    report's path (None: nothing written, as with a dry run, which prints what would
     train)."""
     chosen = get_profile(profile)
     if waits_for_t2_rule(profile, env_id, "drl-eg"):
@@ -154,16 +147,9 @@ def run_figure4(
         to_train,
         Path(store),
         figure4_command(profile, env_id),
-        dry_run=dry_run,
-        workers=workers,
-        checkpoint_interval=checkpoint_interval,
-        executor=executor,
-        address=address,
-        device=device,
-        gpu_workers=gpu_workers,
-        batch=batch,
+        options,
     )
-    if dry_run:
+    if options.dry_run:
         return None
     out_dir = Path(out_dir or report_dir(profile, "fig4"))
     return write_saying_why(

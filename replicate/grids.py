@@ -11,7 +11,7 @@ from typing import Any, Callable
 from replicate import checkpoint_places
 from replicate.drl_eg_settings import T2_WAIT_REASON, waits_for_t2_rule
 from replicate.errors import HarnessError
-from replicate.experiments import run_grid
+from replicate.experiments import GridOptions, run_grid
 from replicate.profiles import GridOutcome
 from replicate.provenance import portable_path
 from replicate.runner import Run, is_complete, load_run, prepare
@@ -49,8 +49,7 @@ def train_and_report(
     write: Callable[[GridOutcome, Path], Path],
     algos: list[str] | None = None,
     envs: list[str] | None = None,
-    dry_run: bool = False,
-    **grid_options: Any,
+    options: GridOptions = GridOptions(),
 ) -> Path | None:
     """A figure command: train what its grid lacks (of the ``algos`` x ``envs`` cells when
     given; cells that wait for the MuJoCo T2 rule never), then ``write(outcome, out_dir)``
@@ -68,8 +67,8 @@ def train_and_report(
     for env_id, algo, reason in skipped:  # the report lists them all; here the chosen ones
         if (algos is None or algo in algos) and (envs is None or env_id in envs):
             print(f"skipped {algo} on {env_id}: {reason}")
-    outcome = train_cells(specs, chosen, store, command, dry_run=dry_run, **grid_options)
-    if dry_run:
+    outcome = train_cells(specs, chosen, store, command, options)
+    if options.dry_run:
         return None
     outcome.skipped = skipped + outcome.skipped
     report = write_saying_why(Path(out_dir), Path(store), lambda out: write(outcome, out))
@@ -199,14 +198,13 @@ def train_cells(
     chosen: list[RunSpec],
     store: Path,
     command: str,
-    dry_run: bool = False,
-    **grid_options: Any,
+    options: GridOptions = GridOptions(),
 ) -> GridOutcome:
     """Train the ``chosen`` part of a grid (what is missing of it); the outcome holds every
     complete run of the whole grid, and the cells outside ``chosen`` that are still absent
     are listed, so a report written from it covers the whole grid."""
-    outcome = run_grid(chosen, store, dry_run=dry_run, **grid_options)
-    if len(chosen) == len(specs) or dry_run:
+    outcome = run_grid(chosen, store, options)
+    if len(chosen) == len(specs) or options.dry_run:
         return outcome
     outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
     outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command, store)

@@ -10,7 +10,7 @@ import argparse
 import base64
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from replicate.profiles import BUDGETS, PROFILES, GridOutcome, report_dir
 from replicate.spec import RunSpec
 from replicate.stats import curve_area, paired_mean_difference
 from replicate.store import Run
+
+if TYPE_CHECKING:
+    from replicate.experiments import GridOptions
 
 NAME = "random-start"
 SEEDS = 3
@@ -159,11 +162,11 @@ def run_random_start(
     profile: str = "reduced",
     store: Path = Path("runs"),
     out_dir: Path | None = None,
-    dry_run: bool = False,
-    **grid_options: Any,
+    options: GridOptions | None = None,
 ) -> Path | None:
     """Train what the study lacks (the random-start runs; today's are Fig. 3's) and write
     its report."""
+    from replicate.experiments import GridOptions
     from replicate.grids import train_and_report
 
     out = Path(out_dir or report_dir(profile, NAME))
@@ -175,8 +178,7 @@ def run_random_start(
         Path(store),
         out,
         lambda outcome, where: write_random_start_report(outcome, profile, where),
-        dry_run=dry_run,
-        **grid_options,
+        options=options or GridOptions(),
     )
 
 
@@ -221,8 +223,7 @@ def _declare_command(sub: Any) -> None:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    grid = ("workers", "checkpoint_interval", "device", "batch")
-    return run_figure(run_random_start, args, **{name: getattr(args, name) for name in grid})
+    return run_figure(run_random_start, args)
 
 
 register(FigureReport(NAME, rebuild, describe, Command(NAME, _declare_command, _run_command)))

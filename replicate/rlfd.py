@@ -26,10 +26,11 @@ from replicate.checks import EQUIVALENT, FAILS, HOLDS, PAIRED, Check, decide
 from replicate.claims import SMALLEST_EFFECT
 from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
+from replicate.experiments import GridOptions
 from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
 from replicate.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.report import drl_eg_improvement
-from replicate.runner import DEFAULT_CHECKPOINT_INTERVAL, Run
+from replicate.runner import Run
 from replicate.spec import RunSpec
 from replicate.stats import (
     CONFIDENCE,
@@ -405,17 +406,14 @@ def run_rlfd(
     seeds: int | None = None,
     store: Path = Path("runs"),
     out_dir: Path | None = None,
-    workers: int | None = None,
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
-    device: str = "auto",
-    batch: int | None = None,
     algos: list[str] | None = None,
     envs: list[str] | None = None,
-    dry_run: bool = False,
+    options: GridOptions = GridOptions(),
 ) -> Path | None:
     """Train what the comparison lacks (only the cells of ``algos`` x ``envs`` when given),
     then write its report from every run of its grid in the store; return the report's
-    path. ``dry_run``: print what would train, train and write nothing, return None."""
+    path. A dry run (``options.dry_run``) prints what would train, trains and writes
+    nothing, and returns None."""
     chosen = get_profile(profile)
     specs, skipped = rlfd_grid(chosen, seeds)
     return train_and_report(
@@ -430,11 +428,7 @@ def run_rlfd(
         ),
         algos,
         envs,
-        dry_run,
-        workers=workers,
-        checkpoint_interval=checkpoint_interval,
-        device=device,
-        batch=batch,
+        options,
     )
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from replicate.demos import DemoError
 from replicate.errors import HarnessError
-from replicate.experiments import run_grid
+from replicate.experiments import GridOptions, run_grid
 from replicate.runner import RunLockedError, prepare
 from replicate.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
@@ -39,7 +39,7 @@ def test_a_run_locked_elsewhere_fails_alone_and_the_grid_goes_on(tmp_path):
     lock_path = tmp_path / f".lock-{prepare(locked_spec).run_id}"
     with open(lock_path, "w") as held:  # another process is training this run
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        outcome = run_grid([locked_spec, free_spec], tmp_path, workers=1)
+        outcome = run_grid([locked_spec, free_spec], tmp_path, GridOptions(workers=1))
     assert [r.spec["seed"] for r in outcome.runs] == [1]
     assert len(outcome.failed) == 1
     run_id, reason = outcome.failed[0]
@@ -69,10 +69,10 @@ def _alive(pid: int) -> bool:
 
 def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
     script = textwrap.dedent(f"""
-        from replicate.experiments import run_grid
+        from replicate.experiments import GridOptions, run_grid
         from tests.test_local_executor import tiny_spec
-        run_grid([tiny_spec(0, steps=200_000)], {str(tmp_path)!r}, workers=1,
-                 checkpoint_interval=200)
+        run_grid([tiny_spec(0, steps=200_000)], {str(tmp_path)!r},
+                 GridOptions(workers=1, checkpoint_interval=200))
     """)
     root = Path(__file__).resolve().parents[1]
     main = subprocess.Popen(
