@@ -120,13 +120,12 @@ def _refreshing_front_door(args: argparse.Namespace, code: int, writes_report: s
 
 def main(argv: list[str] | None = None) -> int:
     from replicate.errors import HarnessError, TimeLimitStop
+    from replicate.figure_registry import figure_commands
 
     argv = _joined_time_limit(sys.argv[1:] if argv is None else list(argv))
     commands = subcommands()
     args = _build_parser(commands).parse_args(argv)
     run = {command.name: command.run for command in commands}[args.command]
-    from replicate.figure_registry import figure_commands
-
     writes_report = {command.name for command in figure_commands()} | {"table1"}
     if getattr(args, "store", "absent") is None:
         args.store = default_store(getattr(args, "profile", None))
