@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from baselines.common.buffer import ReplayBuffer
 from baselines.common.context import BatchContext, DemoSet
-from baselines.common.stacked import StackedReplay, critic_pairs
+from baselines.common.stacked import StackedReplay
 from baselines.drl_eg import fit_neural_guider, functional_guider
 from baselines.offpolicy import PolicyExplorer, action_space, train_members
 from baselines.registry import register
@@ -147,9 +147,7 @@ class IBRLAgent(TwinQSACAgent):
             rl_action, _ = self.policy.sample(obs_t, noise=noise.to(self.device))
         il_action = torch.from_numpy(self.imitation_actions(obs[:, None, :])).to(self.device)
         pair = torch.cat([rl_action, il_action], dim=1)  # (N, 2, act_dim)
-        q = (
-            critic_pairs(self.critics_target, obs_t.expand(-1, 2, -1), pair).min(dim=1).values
-        )  # (N, 2): min over each member's two critics
+        q = self.target_q(obs_t.expand(-1, 2, -1), pair)  # (N, 2)
         imitated = q[:, 1] > q[:, 0]
         action = torch.where(imitated[:, None], pair[:, 1], pair[:, 0])
         return action.cpu().numpy(), imitated.cpu().numpy()
@@ -197,18 +195,12 @@ class IBRLAgent(TwinQSACAgent):
             batch, noise, next_il_actions=torch.from_numpy(next_il).to(self.device)
         )
 
-    def next_state_value(
-        self,
-        next_obs: torch.Tensor,
-        next_noise: torch.Tensor,
-        alpha: torch.Tensor,
-        next_il_actions: torch.Tensor,
+    def bootstrap_q(
+        self, next_obs: torch.Tensor, next_actions: torch.Tensor, next_il_actions: torch.Tensor
     ) -> torch.Tensor:
-        """max(Q'(s', a'), Q'(s', mu(s'))) - alpha log pi(a'|s') per member, a' ~ pi(.|s')."""
-        next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-        q_rl = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
-        q_il = critic_pairs(self.critics_target, next_obs, next_il_actions).min(dim=1).values
-        return torch.maximum(q_rl, q_il) - alpha * next_log_prob
+        """max(Q'(s', a'), Q'(s', mu(s'))) per member, a' ~ pi(.|s')."""
+        q_rl = self.target_q(next_obs, next_actions)
+        return torch.maximum(q_rl, self.target_q(next_obs, next_il_actions))
 
 
 class IBRLExplorer(PolicyExplorer):

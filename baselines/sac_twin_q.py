@@ -161,10 +161,19 @@ class TwinQSACAgent(OffPolicyAgent):
         alpha: torch.Tensor,
         **target_inputs: torch.Tensor,
     ) -> torch.Tensor:
-        """Each member's soft value of s' (N, B) under its target critics (IBRL overrides)."""
+        """Each member's soft value of s' (N, B) under its target critics."""
         next_actions, next_log_prob = self.policy.sample(next_obs, noise=next_noise)
-        next_q = critic_pairs(self.critics_target, next_obs, next_actions).min(dim=1).values
-        return next_q - alpha * next_log_prob
+        return self.bootstrap_q(next_obs, next_actions, **target_inputs) - alpha * next_log_prob
+
+    def bootstrap_q(
+        self, next_obs: torch.Tensor, next_actions: torch.Tensor, **target_inputs: torch.Tensor
+    ) -> torch.Tensor:
+        """The target Q of s' the value bootstraps from (IBRL's: the better of two actions)."""
+        return self.target_q(next_obs, next_actions)
+
+    def target_q(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """The minimum of each member's two target critics, (N, B)."""
+        return critic_pairs(self.critics_target, obs, actions).min(dim=1).values
 
     def _gradient_step(
         self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor], **target_inputs: torch.Tensor
