@@ -109,7 +109,7 @@ def test_target_bootstraps_from_the_higher_valued_proposal():
 
     def recorded(next_obs, next_noise, alpha, next_il_actions):
         seen["next_obs"], seen["il"] = next_obs.clone(), next_il_actions.clone()
-        return next_state_value(next_obs, next_noise, alpha, next_il_actions)
+        return next_state_value(next_obs, next_noise, alpha, next_il_actions=next_il_actions)
 
     next_state_value = agent.next_state_value
     agent.next_state_value = recorded

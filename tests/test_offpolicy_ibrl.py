@@ -9,7 +9,6 @@ import torch
 
 from baselines.common.stacked import critic_pairs
 from baselines.ibrl import IBRLAgent, IBRLConfig, ImitationPolicy
-from baselines.sac_twin_q import TwinQSACAgent
 from replicate.demos import default_demo_path, load_demos
 from replicate.runner import execute, execute_batch, prepare
 from replicate.spec import RunSpec
@@ -131,7 +130,10 @@ def test_the_target_bootstraps_from_the_higher_valued_proposal():
     noise = torch.randn((len(SEEDS), 16, ACT), generator=rng)
     il_actions = torch.rand((len(SEEDS), 16, ACT), generator=rng) * 2 - 1
     alpha = torch.zeros((len(SEEDS), 1))
-    actor_value = TwinQSACAgent.next_state_value(batch, next_obs, noise, alpha)
+    with torch.no_grad():
+        actions, log_prob = batch.policy.sample(next_obs, noise=noise)
+        actor_value = critic_pairs(batch.critics_target, next_obs, actions).min(dim=1).values
+    actor_value = actor_value - alpha * log_prob
     il_value = critic_pairs(batch.critics_target, next_obs, il_actions).min(dim=1).values
     value = batch.next_state_value(next_obs, noise, alpha, next_il_actions=il_actions)
     torch.testing.assert_close(value, torch.maximum(actor_value, il_value))
