@@ -83,32 +83,18 @@ def ablation_specs(
     hyper = algorithm_overrides("drl-eg", profile.overrides)
     hyper.update(drl_eg_env_defaults(env_id))
     hyper.update(guide_threshold=float(threshold), guide_noise_std=float(sigma))
-    return [
-        RunSpec(
-            "drl-eg",
-            env_id,
-            seed,
-            profile.steps[env_id],
-            profile.eval_interval[env_id],
-            profile.eval_episodes,
-            hyper,
-        )
-        for seed in range(seeds)
-    ]
+    return _seed_specs("drl-eg", profile, env_id, seeds, hyper)
 
 
 def sac_specs(profile: Profile, env_id: str, seeds: int) -> list[RunSpec]:
-    hyper = algorithm_overrides("sac", profile.overrides)
+    return _seed_specs("sac", profile, env_id, seeds, algorithm_overrides("sac", profile.overrides))
+
+
+def _seed_specs(algo: str, profile: Profile, env_id: str, seeds: int, hyper: dict) -> list[RunSpec]:
+    """Seeds 0..seeds-1 of ``algo`` on ``env_id`` at the profile's budget."""
+    steps, interval = profile.steps[env_id], profile.eval_interval[env_id]
     return [
-        RunSpec(
-            "sac",
-            env_id,
-            seed,
-            profile.steps[env_id],
-            profile.eval_interval[env_id],
-            profile.eval_episodes,
-            hyper,
-        )
+        RunSpec(algo, env_id, seed, steps, interval, profile.eval_episodes, dict(hyper))
         for seed in range(seeds)
     ]
 
