@@ -42,12 +42,19 @@ from replicate.carry_format import (
 )
 from replicate.checkpoint_places import CHECKPOINT_FILE, KeptCheckpoint
 from replicate.errors import HarnessError
+from replicate.run_recorder import (
+    EARLIER_SEGMENTS_FILE,
+    SEGMENTS_FILE,
+    read_segments,
+    write_segments,
+)
 
 CARRY_DIR = "carry"
 FORMAT = 1
 MANIFEST_FILE = "manifest.json"
-RUN_FILES = ("spec.json", "curve.csv", "sittings.json")  # what a run directory has mid-training
-BATCH_FILES = ("sittings.json", "members.json")
+# what a run directory has mid-training (segments under either name: older stores' too)
+RUN_FILES = ("spec.json", "curve.csv", SEGMENTS_FILE, EARLIER_SEGMENTS_FILE)
+BATCH_FILES = (SEGMENTS_FILE, EARLIER_SEGMENTS_FILE, "members.json")
 
 
 class CarryError(HarnessError):
@@ -209,7 +216,7 @@ def pack_batch(store: Path, ident: str, progress: bool = False) -> Packed:
 
     def build(target: Path) -> None:
         write_state(target, carried_state, actions)
-        _copy_files(batch_dir, target / "batch", ("sittings.json",))
+        _copy_files(batch_dir, target / "batch", (SEGMENTS_FILE, EARLIER_SEGMENTS_FILE))
         (target / "batch" / "members.json").write_text(json.dumps(members) + "\n")
         for run_id, work in zip(members, work_dirs):
             _copy_files(work, target / "partial" / run_id, RUN_FILES)
@@ -347,20 +354,17 @@ def _check_rebuilt(path: Path, manifest: dict[str, Any], digest: str) -> str:
 
 
 def _note_carried(work: Path, manifest: dict[str, Any], replay: str) -> None:
-    """Mark the last part of an unpacked run's training: where it was packed, and its
+    """Mark the last stretch of an unpacked run's training: where it was packed, and its
     replay."""
-    parts_path = work / "sittings.json"
-    if not parts_path.is_file():
-        return
-    parts = json.loads(parts_path.read_text())
-    if parts:
-        parts[-1]["carried"] = {
+    segments = read_segments(work)
+    if segments:
+        segments[-1]["carried"] = {
             "step": manifest["step"],
             "packed_on": manifest["cpu_model"],
             "unpacked_on": provenance.cpu_model(),
             "replay": replay,
         }
-        parts_path.write_text(json.dumps(parts, indent=1) + "\n")
+        write_segments(work, segments)
 
 
 def unpack_batch(store: Path, ident: str) -> bool:

@@ -27,9 +27,9 @@ from baselines.common.networks import TanhGaussianPolicy
 from envs import env_spec, make_env
 from replicate import provenance
 from replicate.errors import HarnessError
+from replicate.run_recorder import read_segments
 from replicate.runner import (
     BEST_POLICY_FILE,
-    SITTINGS_FILE,
     PreparedRun,
     execute,
     execute_batch,
@@ -216,9 +216,8 @@ class _ExpertCandidate:
         return [[int(s), round(float(r), 3)] for s, r in zip(curve["step"], curve["return_mean"])]
 
     @property
-    def sittings(self) -> list[dict[str, Any]]:
-        parts = self.path / SITTINGS_FILE
-        return json.loads(parts.read_text()) if parts.is_file() else []
+    def segments(self) -> list[dict[str, Any]]:
+        return read_segments(self.path)
 
 
 def _candidates(store: Path, run_ids: list[str] | None) -> list[_ExpertCandidate]:
@@ -254,8 +253,8 @@ def export_expert(
     algo, hyperparameters = spec["algo"], spec["hyperparameters"]
     seeds = sorted(c.spec["seed"] for c in candidates)
     threads = hyperparameters.get("torch_threads", 1)
-    sittings = chosen.sittings
-    device = sittings[-1]["device"] if sittings else "cpu"
+    segments = chosen.segments
+    device = segments[-1]["device"] if segments else "cpu"
     curve = chosen.curve
     command = f"python -m replicate expert --env {env_id} --steps {spec['total_steps']}"
     if len(seeds) > 1:
@@ -281,7 +280,7 @@ def export_expert(
         "steps_trained": curve[-1][0],
         "best_step": int(best["step"]),
         "best_eval_return": float(best["mean_return"]),
-        "wall_time_s": round(sum(s["wall_time_s"] for s in sittings), 1),
+        "wall_time_s": round(sum(s["wall_time_s"] for s in segments), 1),
         "curve": curve,
         "command": command,
         "git_revision": provenance.git_revision(),

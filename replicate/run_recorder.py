@@ -1,4 +1,4 @@
-"""The files a run writes while it trains (spec.json, curve.csv, sittings.json and, when it
+"""The files a run writes while it trains (spec.json, curve.csv, segments.json and, when it
 lands, provenance.json): see ``replicate.runner`` for what each holds."""
 
 from __future__ import annotations
@@ -21,7 +21,21 @@ from replicate.store import CURVE_COLUMNS
 if TYPE_CHECKING:
     from replicate.runner import PreparedRun
 
-SITTINGS_FILE = "sittings.json"  # the parts a run was trained in (the name is the format's)
+SEGMENTS_FILE = "segments.json"  # one entry per uninterrupted stretch of a run's training
+EARLIER_SEGMENTS_FILE = "sittings.json"  # the same list in stores written before 2026-12-04
+
+
+def read_segments(directory: Path) -> list[dict[str, Any]]:
+    """The stretches of training recorded in a run's or a batch's directory (none yet: [])."""
+    for name in (SEGMENTS_FILE, EARLIER_SEGMENTS_FILE):
+        if (directory / name).is_file():
+            return json.loads((directory / name).read_text())
+    return []
+
+
+def write_segments(directory: Path, segments: list[dict[str, Any]]) -> None:
+    (directory / SEGMENTS_FILE).write_text(json.dumps(segments, indent=1) + "\n")
+    (directory / EARLIER_SEGMENTS_FILE).unlink(missing_ok=True)
 
 
 def write_json(path: Path, payload: dict[str, Any]) -> None:
@@ -31,15 +45,14 @@ def write_json(path: Path, payload: dict[str, Any]) -> None:
 class RunRecorder:
     """Writes one run's files while it trains: spec.json, curve.csv (rewritten whole: a
     resumed algorithm re-emits the points it had, which keep the wall time they were first
-    written with), sittings.json (the parts of the training) after every point, and
+    written with), segments.json (the stretches of training) after every point, and
     provenance.json at the end."""
 
     def __init__(
         self, prepared: PreparedRun, run_dir: Path, device: str, batch: dict[str, Any] | None = None
     ):
         self.prepared, self.run_dir, self.device, self.batch = prepared, run_dir, device, batch
-        self.parts_path = run_dir / SITTINGS_FILE
-        self.earlier = json.loads(self.parts_path.read_text()) if self.parts_path.is_file() else []
+        self.earlier = read_segments(run_dir)
         self.started = time.time()
         self.started_iso = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.resumed_from = 0
@@ -62,10 +75,10 @@ class RunRecorder:
     def on_resume(self, step: int) -> None:
         self.resumed_from = step
 
-    def record_part(self) -> None:
-        """This part of the training (from its start or resume to now) after the earlier
-        ones, in sittings.json."""
-        part = {
+    def record_segment(self) -> None:
+        """This stretch of training (from its start or resume to now) after the earlier
+        ones, in segments.json."""
+        segment = {
             "started_utc": self.started_iso,
             "resumed_from_step": self.resumed_from,
             "wall_time_s": round(time.time() - self.started, 3),
@@ -73,8 +86,8 @@ class RunRecorder:
             "device": describe_device(self.device),
         }
         if self.batch is not None:
-            part["batch"] = self.batch["id"]
-        self.parts_path.write_text(json.dumps(self.earlier + [part], indent=1) + "\n")
+            segment["batch"] = self.batch["id"]
+        write_segments(self.run_dir, self.earlier + [segment])
 
     def on_eval(self, point: EvalPoint) -> None:
         kept = point.step <= self.resumed_from and point.step in self.earlier_walls
@@ -93,25 +106,25 @@ class RunRecorder:
             ]
         )
         self.curve_file.flush()
-        self.record_part()
+        self.record_segment()
 
     def close(self) -> None:
         if self.curve_file is not None:
             self.curve_file.close()
 
     def finish(self) -> None:
-        """The last part of the training and provenance.json: the run is complete."""
-        self.record_part()
+        """The last stretch of training and provenance.json: the run is complete."""
+        self.record_segment()
         prepared, spec = self.prepared, self.prepared.spec
-        parts = json.loads(self.parts_path.read_text())
-        wall = sum(s["wall_time_s"] for s in parts)
+        segments = read_segments(self.run_dir)
+        wall = sum(s["wall_time_s"] for s in segments)
         payload = {
             "run_id": prepared.run_id,
             "spec_hash": prepared.resolved["spec_hash"],
             "seed": spec.seed,
-            "started_utc": parts[0]["started_utc"],
+            "started_utc": segments[0]["started_utc"],
             "wall_time_s": round(wall, 3),
-            "sittings": parts,
+            "segments": segments,
             "env_steps_per_s": round(spec.total_steps / wall, 2) if wall > 0 else None,
             "git_revision": provenance.code_revision(),
             "versions": provenance.package_versions(),

@@ -14,9 +14,9 @@ Files of a run:
     curve.csv        the evaluation curve (env steps, return of each test episode, ...)
     provenance.json  versions, git revision, machine, seed, wall time, env steps per second,
                      the trainer's code path and the seed batch it trained in
-    sittings.json    one entry per part of the training (a run interrupted and resumed
-                     once was trained in two parts): start, step resumed from, wall time,
-                     device; provenance.json repeats the list under "sittings"
+    segments.json    one entry per uninterrupted stretch of training (a run interrupted and
+                     resumed once has two): start, step resumed from, wall time, device;
+                     provenance.json repeats the list under "segments"
 """
 
 from __future__ import annotations
@@ -44,7 +44,13 @@ from replicate.demos import Demonstrations, default_demo_path, load_demos
 from replicate.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.errors import HarnessError
 from replicate.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
-from replicate.run_recorder import SITTINGS_FILE, RunRecorder, write_json  # noqa: F401
+from replicate.run_recorder import (  # noqa: F401
+    SEGMENTS_FILE,
+    RunRecorder,
+    read_segments,
+    write_json,
+    write_segments,
+)
 from replicate.spec import RunSpec, spec_hash
 from replicate.store import (  # noqa: F401  (the run store's reading side, re-exported)
     CURVE_COLUMNS,
@@ -179,13 +185,13 @@ def execute(
     return load_run(final_dir)
 
 
-def _checkpoint_device(run_dir: Path, earlier_parts: list[dict]) -> str | None:
+def _checkpoint_device(run_dir: Path, earlier_segments: list[dict]) -> str | None:
     """``cpu`` or ``cuda``: where the run's checkpoint was made (by the last part of its
     training, since a part only resumes a checkpoint of its own kind); None without a
     checkpoint. Parts from before the GPU path name no device: they ran on CPU."""
     if not (run_dir / CHECKPOINT_FILE).is_file():
         return None
-    return device_kind(earlier_parts[-1].get("device", "cpu") if earlier_parts else "cpu")
+    return device_kind(earlier_segments[-1].get("device", "cpu") if earlier_segments else "cpu")
 
 
 def _context(
@@ -319,8 +325,7 @@ def execute_batch(
         batch_dir.mkdir(exist_ok=True)
         (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
         checkpoint_places.fetch(store, ident, batch_dir / CHECKPOINT_FILE)  # kept elsewhere?
-        batch_parts = batch_dir / SITTINGS_FILE
-        earlier = json.loads(batch_parts.read_text()) if batch_parts.is_file() else []
+        earlier = read_segments(batch_dir)
         resolved = resolve_device(device, has_gpu_path=algorithm.gpu)
         try:
             resolved = resume_device(
@@ -333,13 +338,13 @@ def execute_batch(
             raise HarnessError(
                 str(exc), f"run it on the device its checkpoint names, or delete {batch_dir}"
             ) from None
-        # this part is recorded before training: a checkpoint it leaves names its device
-        batch_parts.write_text(
-            json.dumps(
-                earlier + [{"wall_time_s": 0.0, "device": describe_device(resolved)}], indent=1
-            )
-            + "\n"
-        )
+
+        def record_batch_segment(wall_time_s: float) -> None:
+            this = {"wall_time_s": wall_time_s, "device": describe_device(resolved)}
+            write_segments(batch_dir, earlier + [this])
+
+        # this stretch is recorded before training: a checkpoint it leaves names its device
+        record_batch_segment(0.0)
         info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
         work_dirs = [partial_directory(p, store) for p in members]
         recorders = []
@@ -369,22 +374,10 @@ def execute_batch(
             recorder.open()
         try:
             trainer(bctx, [p.config for p in members])
-        except TimeLimitReached:  # each part's wall time up to the stop; the checkpoint stays
-            batch_parts.write_text(
-                json.dumps(
-                    earlier
-                    + [
-                        {
-                            "wall_time_s": round(time.time() - started, 3),
-                            "device": describe_device(resolved),
-                        }
-                    ],
-                    indent=1,
-                )
-                + "\n"
-            )
+        except TimeLimitReached:  # each stretch's wall time up to the stop; the checkpoint stays
+            record_batch_segment(round(time.time() - started, 3))
             for recorder in recorders:
-                recorder.record_part()
+                recorder.record_segment()
             raise
         except CheckpointDeviceError as exc:
             raise HarnessError(
@@ -406,19 +399,7 @@ def execute_batch(
         finally:
             for recorder in recorders:
                 recorder.close()
-        batch_parts.write_text(
-            json.dumps(
-                earlier
-                + [
-                    {
-                        "wall_time_s": round(time.time() - started, 3),
-                        "device": describe_device(resolved),
-                    }
-                ],
-                indent=1,
-            )
-            + "\n"
-        )
+        record_batch_segment(round(time.time() - started, 3))
         runs, failed = [], []
         for k, (p, recorder, work) in enumerate(zip(members, recorders, work_dirs)):
             if k in failures:

@@ -65,7 +65,7 @@ def test_a_carried_batch_resumes_in_another_store_on_the_uninterrupted_curves(
     assert len(outcome.runs) == 2 and not outcome.failed
     assert _curves(second) == _curves(whole)
     for run in outcome.runs:
-        parts = json.loads((run.path / "sittings.json").read_text())
+        parts = json.loads((run.path / "segments.json").read_text())
         assert [s["resumed_from_step"] for s in parts] == [0, 400]
         assert parts[0]["carried"]["replay"] == "rebuilt bit for bit"
     assert state.name not in {p.name for p in carry.carry_root(second).iterdir()}  # done
@@ -120,7 +120,7 @@ def test_a_carried_replay_that_does_not_rebuild_is_refused_and_kept(tmp_path, mo
     assert carry.listing(tmp_path)  # still carried, for a machine where it rebuilds
     monkeypatch.setenv(carry.ACCEPT_REBUILT, "1")  # the user takes the replay as rebuilt
     run = execute(prepare(spec), tmp_path, device="cpu")
-    assert "accepted" in run.provenance["sittings"][0]["carried"]["replay"]
+    assert "accepted" in run.provenance["segments"][0]["carried"]["replay"]
 
 
 def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
@@ -249,7 +249,7 @@ def test_a_carry_whose_runs_landed_is_pruned_and_an_older_local_checkpoint_gives
     assert again == [] and "already" in skipped[0]
     assert carry.listing(first)[0]["step"] == packed.step
     run = execute(prepare(spec), first, device="cpu")
-    assert run.provenance["sittings"][-2]["carried"]["step"] == packed.step
+    assert run.provenance["segments"][-2]["carried"]["step"] == packed.step
     assert carry.listing(first) == []  # discarded when the run landed
     shutil.copytree(carry.carry_root(second), carry.carry_root(first), dirs_exist_ok=True)
     assert carry.prune(first) == [packed.name] and carry.listing(first) == []

@@ -184,7 +184,7 @@ def _interrupted_run(store, checkpoint_device: str):
     prepared = prepare(RunSpec("sac", MOUNTAINCAR, 0, 400, 100, 1, dict(TINY)))
     batch_dir = store / f".{batch_id([prepared])}"
     save_checkpoint(batch_dir / CHECKPOINT_FILE, {"step": 200, "device": checkpoint_device})
-    (batch_dir / "sittings.json").write_text(
+    (batch_dir / "segments.json").write_text(
         json.dumps([{"wall_time_s": 1.0, "device": checkpoint_device}])
     )
     work = partial_directory(prepared, store)
@@ -239,7 +239,7 @@ def test_an_expert_checkpoint_from_a_gpu_is_refused_here_and_kept(tmp_path, monk
     store = experts.work_dir_for("Hopper-v5", tmp_path)
     checkpoint = store / f".{batch_id([run])}" / CHECKPOINT_FILE
     save_checkpoint(checkpoint, {"step": 100, "device": "cuda"})
-    (checkpoint.parent / "sittings.json").write_text(
+    (checkpoint.parent / "segments.json").write_text(
         json.dumps([{"wall_time_s": 1.0, "device": "cuda (NVIDIA H100 80GB HBM3, CUDA 13.0)"}])
     )
     with pytest.raises(HarnessError, match="made on cuda"):

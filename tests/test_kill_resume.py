@@ -65,7 +65,7 @@ def test_kill_minus_nine_then_resume(tmp_path):
     while time.time() < deadline and process.poll() is None:
         # a run trains as a seed batch of one: the checkpoint is the batch's, the curve the run's
         found = list(store.glob(".batch-*/checkpoint.pt")) if store.exists() else []
-        parts = list(store.glob(".partial-*/sittings.json")) if store.exists() else []
+        parts = list(store.glob(".partial-*/segments.json")) if store.exists() else []
         if found and parts and json.loads(parts[0].read_text())[-1]["wall_time_s"] > 0:
             curve = pd.read_csv(parts[0].parent / "curve.csv")
             if curve["step"].max() >= 600:  # well past a few checkpoints
@@ -80,7 +80,7 @@ def test_kill_minus_nine_then_resume(tmp_path):
     assert train(store).wait(timeout=300) == 0
     run, reference = the_run(store), the_run(reference_store)
     assert run.name == reference.name
-    parts = json.loads((run / "provenance.json").read_text())["sittings"]
+    parts = json.loads((run / "provenance.json").read_text())["segments"]
     assert len(parts) == 2 and parts[1]["resumed_from_step"] >= 300
     ours = pd.read_csv(run / "curve.csv")
     theirs = pd.read_csv(reference / "curve.csv")

@@ -373,7 +373,7 @@ def test_kill_9_and_resume_ends_on_the_uninterrupted_curves(tmp_path, seeds):
             return [line.rsplit(",", 1)[0] for line in lines]  # wall time differs
 
         assert strip(a) == strip(b)
-        parts = json.loads((killed / name / "sittings.json").read_text())
+        parts = json.loads((killed / name / "segments.json").read_text())
         assert len(parts) == 2 and parts[1]["resumed_from_step"] >= 600
 
 

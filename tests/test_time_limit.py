@@ -17,7 +17,7 @@ from replicate.cli_options import TIME_LIMIT_EXIT
 from replicate.errors import HarnessError
 from replicate.runner import (
     CHECKPOINT_FILE,
-    SITTINGS_FILE,
+    SEGMENTS_FILE,
     batch_id,
     execute,
     execute_batch,
@@ -122,8 +122,31 @@ def test_a_run_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curve(tmp_
     pd.testing.assert_frame_equal(
         curve_without_wall_time(resumed.path), curve_without_wall_time(reference.path)
     )
-    parts = json.loads((resumed.path / SITTINGS_FILE).read_text())
-    assert [p["resumed_from_step"] for p in parts] == [0, stop.value.step]
+    segments = json.loads((resumed.path / SEGMENTS_FILE).read_text())
+    assert [s["resumed_from_step"] for s in segments] == [0, stop.value.step]
+    assert resumed.provenance["segments"] == segments
+
+
+def test_a_run_interrupted_in_a_store_of_the_earlier_format_resumes_and_keeps_its_segments(
+    tmp_path,
+):
+    """Stores written before 2026-12-04 call segments.json sittings.json: a resume reads
+    them under that name and writes them under the new one."""
+    prepared = prepare(
+        RunSpec("sac", MOUNTAINCAR, 0, 1200, 400, 1, {**TINY, "learning_starts": 900})
+    )
+    with pytest.raises(TimeLimitReached) as stop:
+        execute(prepared, tmp_path, device="cpu", checkpoint_interval=0, deadline=time.time() - 1)
+    for directory in (
+        tmp_path / f".{batch_id([prepared])}",
+        tmp_path / f".partial-{prepared.run_id}",
+    ):
+        (directory / SEGMENTS_FILE).rename(directory / "sittings.json")
+
+    resumed = execute(prepared, tmp_path, device="cpu")
+    segments = resumed.provenance["segments"]
+    assert [s["resumed_from_step"] for s in segments] == [0, stop.value.step]
+    assert not (resumed.path / "sittings.json").exists()
 
 
 def test_a_seed_batch_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curves(tmp_path):
