@@ -23,7 +23,7 @@ DEFAULT_GUIDE_NOISE_STD = 0.1
 
 ALWAYS_GUIDE = 1e6  # a T2 no distance reaches: every state is guided while the gate is open
 
-# Issue 14: the MuJoCo default T2 is fixed from the threshold ablation on Ant and Walker2d at
+# The MuJoCo default T2 is fixed from the threshold ablation on Ant and Walker2d at
 # the reduced budget, by the criterion written before its runs (``ablation.T2_RULE_CRITERION``),
 # before any Fig. 3 or Fig. 4 DRL-EG run at that budget trains, and not changed after them.
 # The rule is one of T2_RULE_SETTINGS, as choose_t2_rule names it: a multiple of each env's

@@ -12,8 +12,8 @@ from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError
 from replicate.templating import report_environment
 
-# The demonstrations' mean return that published SAC reaches at 1M steps (issue 14's
-# targets for the harness's experts; replicate/data/published/sac_mujoco.csv has sources).
+# The demonstrations' mean return that published SAC reaches at 1M steps (the targets for
+# the harness's experts; replicate/data/published/sac_mujoco.csv has sources).
 EXPERT_TARGETS = {
     "Hopper-v5": 3000.0,
     "Walker2d-v5": 4000.0,

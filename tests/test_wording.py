@@ -18,6 +18,8 @@ PHRASES = (
     r"working[ ]sessions?",
     r"borrowed[ ]GPU",
     r"machine[ ]time",
+    r"\bsitt[i]ngs?\b(?!\.json)",  # "interrupted and resumed"; older stores' file keeps its name
+    r"\bissue[ ]\d+",  # the project's tracker is not the user's
 )
 WORDS = re.compile("|".join(PHRASES), re.IGNORECASE)
 SKIPPED = ("runs/",)  # the run store: committed provenance records as they were written
