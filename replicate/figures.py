@@ -163,6 +163,33 @@ def shared_legend(
         )
 
 
+def env_panels(
+    runs: Sequence[Any], panel_height: float, ylabel: str
+) -> tuple[plt.Figure, list[tuple[Axes, list[Any]]], Any]:
+    """The figure of a report on runs: the shared look, one panel per env of ``runs``
+    (sorted), each titled with its env, its y axis labelled and its x axis in env steps:
+    (figure, [(panel, that env's runs)], the free cell for a legend or None)."""
+    set_theme()
+    envs = sorted({r.spec["env_id"] for r in runs})
+    fig, axes, slot = panel_grid(len(envs), FIG3_COLUMNS, panel_height, legend_height=0.6)
+    panels = []
+    for ax, env_id in zip(axes, envs, strict=True):
+        ax.set_title(env_id)
+        ax.set_ylabel(ylabel)
+        format_steps_axis(ax)
+        panels.append((ax, [r for r in runs if r.spec["env_id"] == env_id]))
+    return fig, panels, slot
+
+
+def finished_png(
+    fig: plt.Figure, handles: list[Any], labels: list[str], slot: Any, title: str
+) -> bytes:
+    """The shared legend and the title added, the figure as PNG bytes."""
+    shared_legend(fig, handles, labels, slot)
+    fig.suptitle(title)
+    return png_bytes(fig)
+
+
 def algo_handle(algo: str, **style: Any) -> Line2D:
     """A legend entry's line in ``algo``'s colour."""
     return Line2D([], [], color=algo_color(algo), linewidth=style.pop("linewidth", 2.2), **style)

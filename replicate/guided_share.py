@@ -51,22 +51,11 @@ def guided_runs(profile: str, store: Path) -> list[Run]:
 def guided_share_png(runs: list[Run], title: str) -> bytes:
     """One panel per env: each run's guided share per evaluation interval, thin lines in
     its algorithm's colour."""
-    from replicate.figures import (
-        FIG3_COLUMNS,
-        algo_color,
-        algo_handle,
-        format_steps_axis,
-        panel_grid,
-        png_bytes,
-        set_theme,
-        shared_legend,
-    )
+    from replicate.figures import algo_color, algo_handle, env_panels, finished_png
 
-    set_theme()
-    envs = sorted({r.spec["env_id"] for r in runs})
-    fig, axes, slot = panel_grid(len(envs), FIG3_COLUMNS, 3.2, legend_height=0.6)
-    for ax, env_id in zip(axes, envs, strict=True):
-        for run in (r for r in runs if r.spec["env_id"] == env_id):
+    fig, panels, slot = env_panels(runs, 3.2, "share of steps guided")
+    for ax, env_runs in panels:
+        for run in env_runs:
             curve = run.curve.iloc[1:]  # the step-0 point has no interval before it
             ax.plot(
                 curve["step"],
@@ -75,14 +64,9 @@ def guided_share_png(runs: list[Run], title: str) -> bytes:
                 linewidth=1.0,
                 alpha=0.8,
             )
-        ax.set_title(env_id)
         ax.set_ylim(-0.02, 1.02)
-        ax.set_ylabel("share of steps guided")
-        format_steps_axis(ax)
     algos = sorted({r.spec["algo"] for r in runs})
-    shared_legend(fig, [algo_handle(a) for a in algos], algos, slot)
-    fig.suptitle(title)
-    return png_bytes(fig)
+    return finished_png(fig, [algo_handle(a) for a in algos], algos, slot, title)
 
 
 def write_guided_share_report(runs: list[Run], profile: str, out_dir: Path) -> Path:

@@ -103,31 +103,17 @@ def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
 def curves_png(runs: list[Run], title: str) -> bytes:
     from matplotlib.lines import Line2D
 
-    from replicate.figures import (
-        FIG3_COLUMNS,
-        algo_color,
-        format_steps_axis,
-        panel_grid,
-        png_bytes,
-        set_theme,
-        shared_legend,
-    )
+    from replicate.figures import algo_color, env_panels, finished_png
 
-    set_theme()
-    envs = sorted({r.spec["env_id"] for r in runs})
-    fig, axes, slot = panel_grid(len(envs), FIG3_COLUMNS, 3.6, legend_height=0.6)
+    fig, panels, slot = env_panels(runs, 3.6, "return")
     colour = algo_color("sac")
-    for ax, env_id in zip(axes, envs, strict=True):
-        for run in (r for r in runs if r.spec["env_id"] == env_id):
+    for ax, env_runs in panels:
+        for run in env_runs:
             style = "--" if _start(run) else "-"
             ax.plot(run.curve["step"], run.curve["return_mean"], style, color=colour, lw=1.2)
-        ax.set_title(env_id)
-        ax.set_ylabel("return")
-        format_steps_axis(ax)
     handles = [Line2D([], [], color=colour, ls="-"), Line2D([], [], color=colour, ls="--")]
-    shared_legend(fig, handles, ["today's start (initial policy)", "random start"], slot)
-    fig.suptitle(title)
-    return png_bytes(fig)
+    labels = ["today's start (initial policy)", "random start"]
+    return finished_png(fig, handles, labels, slot, title)
 
 
 def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path) -> Path:
