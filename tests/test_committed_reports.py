@@ -150,6 +150,9 @@ def test_no_quantity_appears_with_two_intervals():
 
 
 def test_no_interval_over_few_seeds_is_just_the_seeds_range():
+    """A percentile bootstrap over 3 seeds gives back their range; a t-interval over n <= 4
+    seeds always reaches past it (its half width t * s / sqrt(n) exceeds the largest
+    possible distance of a seed from the mean, s (n - 1) / sqrt(n)); over 5 it need not."""
     checked = 0
     for report in _committed():
         summary = json.loads((report / "summary.json").read_text())
@@ -158,7 +161,8 @@ def test_no_interval_over_few_seeds_is_just_the_seeds_range():
             if len(finals) >= 2 and max(finals) > min(finals):
                 checked += 1
                 assert cell["ci95"] != [min(finals), max(finals)], cell
-                assert cell["ci95"][0] < min(finals) or cell["ci95"][1] > max(finals), cell
+                if len(finals) <= 4:
+                    assert cell["ci95"][0] < min(finals) and cell["ci95"][1] > max(finals), cell
     assert checked
 
 
