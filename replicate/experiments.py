@@ -8,6 +8,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import queue
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -67,10 +68,20 @@ def time_limit(deadline: float | None) -> Iterator[None]:
         _deadline = before
 
 
-def _init_worker(progress: Any, devices: Any) -> None:
+def _init_worker(progress: Any, devices: Any, parent: int) -> None:
     global _progress, _device
     _progress = progress
     _device = devices.get()
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Once the figure's process is gone (killed), exit as a kill would, leaving the last
+    checkpoint for the next invocation: neither training on unseen and unowned nor idling
+    forever on a queue nobody feeds."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(ORPHANED_EXIT_CODE)
 
 
 def _worker(
@@ -89,14 +100,9 @@ def _worker(
         raise TimeLimitReached(None)
     progress = _progress
     pending = 0
-    parent = os.getppid()
 
     def on_steps(n: int) -> None:
         nonlocal pending
-        if os.getppid() != parent:
-            # The figure's process is gone (killed): stop as a kill would, leaving the last
-            # checkpoint for the next invocation, instead of training on unseen and unowned.
-            os._exit(ORPHANED_EXIT_CODE)
         pending += n
         if pending >= 250:
             progress.put(pending)
@@ -278,7 +284,7 @@ def run_grid(
                 max_workers=workers,
                 mp_context=ctx,
                 initializer=_init_worker,
-                initargs=(progress, device_slots),
+                initargs=(progress, device_slots, os.getpid()),
             ) as pool:
                 futures: dict[Future, PreparedRun | list[PreparedRun]] = {
                     pool.submit(
