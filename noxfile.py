@@ -74,7 +74,7 @@ def compare_rlfd(session: nox.Session) -> None:
 
 @nox.session(name="sac-random-start", python=PYTHON)
 def sac_random_start(session: nox.Session) -> None:
-    """SAC with the SAC authors' random start against today's start (default profile:
+    """SAC with the SAC authors' random start against the default start (default profile:
     reduced): reports/<profile>/random-start."""
     _install(session)
     session.run(

@@ -1,8 +1,9 @@
-"""Our V-SAC with the SAC authors' random start against today's start: the same seeds (so the
-same initial weights), with and without uniform-random actions for the first steps
+"""Our V-SAC with the SAC authors' random start against the default start: the same seeds
+(so the same initial weights), with and without uniform-random actions for the first steps
 (``random_start_steps``: 10,000 on HalfCheetah and Ant in the SAC authors' code), at a
-profile's Fig. 3 budget. Today's-start runs are Fig. 3's own SAC runs (the same addresses);
-the report gives each env's paired difference in final return and area under the curve."""
+profile's Fig. 3 budget. The default start's runs are Fig. 3's own SAC runs (the same
+addresses); the report gives each env's paired difference in final return and area under
+the curve."""
 
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ def study_envs(profile: str) -> list[str]:
 
 
 def random_start_grid(profile: str, seeds: int | None = None) -> list[RunSpec]:
-    """SAC on the study's envs, each seed with today's start (Fig. 3's run) and the random
+    """SAC on the study's envs, each seed with the default start (Fig. 3's run) and the random
     start."""
     from replicate.grids import algorithm_overrides
 
@@ -68,20 +69,20 @@ def _area(run: Run) -> float:
 
 
 def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
-    """Per env: each start's runs by seed, and the paired differences (random minus today's)
+    """Per env: each start's runs by seed, and the paired differences (random minus default)
     over the seeds that have both."""
     rows = []
     for env_id in sorted({r.spec["env_id"] for r in runs}):
         here = [r for r in runs if r.spec["env_id"] == env_id]
-        today = {r.spec["seed"]: r for r in here if _start(r) == 0}
+        default = {r.spec["seed"]: r for r in here if _start(r) == 0}
         random = {r.spec["seed"]: r for r in here if _start(r) > 0}
-        shared = sorted(set(today) & set(random))
-        quantity = f"{env_id}: SAC with a random start minus today's start"
+        shared = sorted(set(default) & set(random))
+        quantity = f"{env_id}: SAC with a random start minus the default start"
 
         def paired(values: Any, what: str) -> dict[str, Any]:
             return paired_mean_difference(
                 np.array([values(random[s]) for s in shared]),
-                np.array([values(today[s]) for s in shared]),
+                np.array([values(default[s]) for s in shared]),
                 f"{quantity}, {what}",
             ).as_dict()
 
@@ -90,7 +91,7 @@ def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "env_id": env_id,
                 "steps": int(here[0].spec["total_steps"]),
                 "random_start_steps": sorted({_start(r) for r in random.values()}),
-                "today": {s: today[s].final_return for s in sorted(today)},
+                "default": {s: default[s].final_return for s in sorted(default)},
                 "random": {s: random[s].final_return for s in sorted(random)},
                 "final": paired(lambda r: r.final_return, "final return") if shared else None,
                 "area": paired(_area, "area under the curve") if shared else None,
@@ -112,7 +113,7 @@ def curves_png(runs: list[Run], title: str) -> bytes:
             style = "--" if _start(run) else "-"
             ax.plot(run.curve["step"], run.curve["return_mean"], style, color=colour, lw=1.2)
     handles = [Line2D([], [], color=colour, ls="-"), Line2D([], [], color=colour, ls="--")]
-    labels = ["today's start (initial policy)", "random start"]
+    labels = ["default start (initial policy)", "random start"]
     return finished_png(fig, handles, labels, slot, title)
 
 
@@ -121,7 +122,7 @@ def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path)
     from replicate.templating import report_environment
 
     rows = comparison_rows(outcome.runs)
-    title = f"SAC's random start against today's, profile '{profile}'"
+    title = f"SAC's random start against the default start, profile '{profile}'"
     context = {
         "title": title,
         "profile": profile,
@@ -150,8 +151,8 @@ def run_random_start(
     out_dir: Path | None = None,
     options: GridOptions | None = None,
 ) -> Path | None:
-    """Train what the study lacks (the random-start runs; today's are Fig. 3's) and write
-    its report."""
+    """Train what the study lacks (the random-start runs; the default start's are Fig. 3's)
+    and write its report."""
     from replicate.experiments import GridOptions
     from replicate.grids import train_and_report
 
@@ -175,13 +176,13 @@ def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path
         random_start_grid(profile, seeds), [], profile, store, command(profile)
     )
     if outcome is None or not any(_start(r) for r in outcome.runs):
-        return None  # nothing of its own yet: Fig. 3 shows today's start
+        return None  # nothing of its own yet: Fig. 3 shows the default start
     return write_random_start_report(outcome, profile, out_dir)
 
 
 def describe(summary: dict[str, Any]) -> dict[str, str]:
     return {
-        "covers": "SAC with the SAC authors' random start against today's start",
+        "covers": "SAC with the SAC authors' random start against the default start",
         "budget": budget_words([row["steps"] for row in summary["rows"]]),
         "seeds": seed_words([len(row["random"]) for row in summary["rows"]]),
     }
@@ -193,7 +194,7 @@ def describe(summary: dict[str, Any]) -> dict[str, str]:
 def _declare_command(sub: Any) -> None:
     start = sub.add_parser(
         "random-start",
-        help="SAC with the SAC authors' random start against today's start",
+        help="SAC with the SAC authors' random start against the default start",
         description="Train SAC on HalfCheetah-v5 and Ant-v5 with 10,000 uniform-random "
         "start steps, from the seeds of the profile's Fig. 3 SAC runs (only runs missing "
         "from the store), and write reports/<profile>/random-start/index.html: each env's "

@@ -83,15 +83,15 @@ def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch)
     assert drawn == [(seed, step) for step in range(1, 151) for seed in (0, 1)]
 
 
-def test_the_study_reuses_fig3s_sac_runs_for_todays_start():
+def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
     from replicate.fig3 import figure3_grid
     from replicate.profiles import get_profile
     from replicate.random_start import random_start_grid
 
     fig3 = {prepare(s).run_id for s in figure3_grid(get_profile("reduced"))[0] if s.algo == "sac"}
     study = [prepare(s) for s in random_start_grid("reduced")]
-    today = {p.run_id for p in study if not p.spec.hyperparameters["random_start_steps"]}
-    assert len(today) == 6 and today <= fig3
+    default = {p.run_id for p in study if not p.spec.hyperparameters["random_start_steps"]}
+    assert len(default) == 6 and default <= fig3
     assert {p.resolved["hyperparameters"].get("random_start_steps") for p in study} == {
         None,
         10_000,
