@@ -1,6 +1,5 @@
 """kill -9 a training process after it has checkpointed; the same command finishes the run
-on the curve an uninterrupted run draws, without starting over. A killed grid leaves no
-worker process behind."""
+on the curve an uninterrupted run draws, without starting over."""
 
 import json
 import os
@@ -8,10 +7,8 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pandas as pd
-import pytest
 
 TRAIN = [
     sys.executable,
@@ -90,53 +87,3 @@ def test_kill_minus_nine_then_resume(tmp_path):
     assert ours["step"].tolist() == theirs["step"].tolist()
     assert ours["returns"].tolist() == theirs["returns"].tolist()
     pd.testing.assert_series_equal(ours["train_return"], theirs["train_return"])
-
-
-def _children(pid: int) -> list[int]:
-    """The worker processes of ``pid`` (Linux /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            command = (stat.parent / "cmdline").read_bytes()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and b"spawn_main" in command:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    """Running or sleeping: not gone and not a zombie left for a PID 1 that does not reap."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def test_a_killed_grid_leaves_no_worker_behind(tmp_path):
-    if not Path("/proc/self/stat").is_file():
-        pytest.skip("needs Linux /proc")
-    store = tmp_path / "store"
-    grid = [sys.executable, "-m", "replicate", "fig3", "--profile", "smoke", "--algos", "sac"]
-    grid += ["--envs", "MountainCarContinuous-v0", "--seeds", "2", "--workers", "1"]
-    process = subprocess.Popen(
-        [*grid, "--store", str(store), "--out", str(tmp_path / "report")],
-        env=dict(os.environ, MUJOCO_GL="disable"),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 120
-    while time.time() < deadline and not list(store.glob(".partial-*")):
-        time.sleep(0.1)  # the first of two runs is training: the grid is mid-way
-    workers = _children(process.pid)
-    assert workers and process.poll() is None
-    process.send_signal(signal.SIGKILL)
-    process.wait()
-    deadline = time.time() + 20
-    while time.time() < deadline and any(_alive(w) for w in workers):
-        time.sleep(0.2)
-    left = [w for w in workers if _alive(w)]
-    for worker in left:
-        os.kill(worker, signal.SIGKILL)
-    assert not left, "worker processes outlived the killed grid"
