@@ -15,12 +15,14 @@ from replicate import experiments
 from replicate.cli import main, parse_time_limit
 from replicate.cli_options import TIME_LIMIT_EXIT
 from replicate.errors import HarnessError
+from replicate.run_recorder import EARLIER_SEGMENTS_FILE
 from replicate.runner import (
     CHECKPOINT_FILE,
     SEGMENTS_FILE,
     batch_id,
     execute,
     execute_batch,
+    partial_directory,
     prepare,
 )
 from replicate.spec import RunSpec
@@ -139,14 +141,14 @@ def test_a_run_interrupted_in_a_store_of_the_earlier_format_resumes_and_keeps_it
         execute(prepared, tmp_path, device="cpu", checkpoint_interval=0, deadline=time.time() - 1)
     for directory in (
         tmp_path / f".{batch_id([prepared])}",
-        tmp_path / f".partial-{prepared.run_id}",
+        partial_directory(prepared, tmp_path),
     ):
-        (directory / SEGMENTS_FILE).rename(directory / "sittings.json")
+        (directory / SEGMENTS_FILE).rename(directory / EARLIER_SEGMENTS_FILE)
 
     resumed = execute(prepared, tmp_path, device="cpu")
     segments = resumed.provenance["segments"]
     assert [s["resumed_from_step"] for s in segments] == [0, stop.value.step]
-    assert not (resumed.path / "sittings.json").exists()
+    assert not (resumed.path / EARLIER_SEGMENTS_FILE).exists()
 
 
 def test_a_seed_batch_stopped_at_its_deadline_resumes_onto_the_uninterrupted_curves(tmp_path):
