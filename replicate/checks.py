@@ -1,13 +1,17 @@
 """A check: an estimate over a group of runs (a mean over seeds, or a difference of means)
 against a threshold or a band, through a t-interval: paired on per-seed differences where
-the two algorithms share seeds and initial weights (SAC and DRL-EG), Welch's otherwise.
+the two algorithms share initial weights seed by seed (SAC and DRL-EG), Welch's otherwise.
 
-A check *holds* when its interval lies wholly on the claimed side, *fails* when it lies
-wholly on the other, is *equivalent* when a claimed difference lies wholly within the
-smallest effect of interest (a difference too small to matter, not "better" or "worse"),
-is *not testable at this budget* when a precondition was never observed, and is
+A check *holds* when its one-sided test of the claimed side rejects at 2.5% (for a primary
+check: its 95% interval lies wholly on the claimed side), *fails* when the test of the
+other side does, is *equivalent* when two one-sided tests put a claimed difference within
+the smallest effect of interest (a difference too small to matter, not "better" or
+"worse"), is *not testable at this budget* when a precondition was never observed, and is
 *inconclusive* otherwise. Secondary checks decide on Holm-adjusted p-values (one family per
-claim), so a claim with many checks is not failed by chance.
+claim), so a claim with many checks is not failed by chance; their 95% intervals are shown
+unadjusted, so one can clear its threshold and still be inconclusive. A claim judged on two
+envs is not reproduced when either env's primary check fails or is equivalent after Holm's
+adjustment over the two (the route to "reproduced" needs no adjustment: both must hold).
 """
 
 from __future__ import annotations
@@ -71,7 +75,7 @@ def difference(
     a: Group, b: Group, values: Callable[[Group], np.ndarray], what: str
 ) -> MeanEstimate:
     """``values(a) - values(b)``: paired over shared seeds when a and b are SAC and DRL-EG
-    (same seeds, same initial weights) or ran the same seeds, else Welch over all runs."""
+    (same seed, same initial weights), else Welch over all runs."""
     quantity = f"{where(a)}: {LABELS[a.algo]} minus {LABELS[b.algo]}, {what}"
     return seed_matched_difference(
         dict(zip(a.seeds, values(a).tolist())),
@@ -114,6 +118,7 @@ class Check:
     groups: tuple[Group, ...] = ()  # whose runs more seeds would add to
     state: str = INCONCLUSIVE
     adjusted: dict[str, float] = field(default_factory=dict)
+    unadjusted: dict[str, float] = field(default_factory=dict)
     decide: str | None = None
 
     def p_values(self) -> dict[str, float]:
@@ -146,6 +151,23 @@ class Check:
             return max(gap, self.smallest_effect - gap)
         return gap
 
+    def routes(self) -> list[tuple[float, ...]]:
+        """The ways the check could be decided from where its estimate lies, each the
+        distances from the estimate to the bounds its one-sided tests must clear: beyond
+        the threshold on the estimate's side, or (with a smallest effect of interest, from
+        inside it) within the band, two tests."""
+        value = self.estimate.value
+        if self.within is not None:
+            low, high = self.within
+            if low < value < high:
+                return [(value - low, high - value)]
+            return [(max(low - value, value - high),)]
+        gap = abs(value - self.above)
+        routes = [(gap,)]
+        if self.smallest_effect and gap < self.smallest_effect:
+            routes.append((self.smallest_effect - gap, self.smallest_effect + gap))
+        return routes
+
     def as_dict(self) -> dict[str, Any]:
         est = self.estimate
         return {
@@ -161,6 +183,7 @@ class Check:
             "smallest_effect": self.smallest_effect,
             "verdict": self.state,
             "p_adjusted": self.adjusted,
+            "p_unadjusted": self.unadjusted,
             "seeds_meeting": self.seeds_meeting,
             "n": est.n,
             "not_testable": self.not_testable,
@@ -169,26 +192,29 @@ class Check:
 
 
 def decide(checks: list[Check]) -> None:
-    """Set every check's state: the primary ones on their own p-values, the secondary ones
-    on Holm-adjusted p-values, one family per outcome over the claim's secondary checks."""
-    secondary = [c for c in checks if not c.primary and not c.not_testable]
-    raw = [c.p_values() for c in secondary]
-    families = {o: holm([p.get(o, np.nan) for p in raw]) for o in (HOLDS, FAILS, EQUIVALENT)}
+    """Set every check's state. Secondary checks decide on Holm-adjusted p-values, one
+    family per outcome over the claim's secondary checks. Primary checks decide "holds" on
+    their own p-values (all must hold: an intersection-union test) and "fails" or
+    "equivalent" on p-values Holm-adjusted over the claim's primary checks (either one
+    would make the claim not reproduced)."""
+    testable = [c for c in checks if not c.not_testable]
+    for role in (False, True):
+        members = [c for c in testable if c.primary == role]
+        raw = [c.p_values() for c in members]
+        adjusted_outcomes = (FAILS, EQUIVALENT) if role else (HOLDS, FAILS, EQUIVALENT)
+        families = {o: holm([p.get(o, np.nan) for p in raw]) for o in adjusted_outcomes}
+        for k, check in enumerate(members):
+            p = {o: (families[o][k] if o in families else v) for o, v in raw[k].items()}
+            check.unadjusted = {o: float(v) for o, v in raw[k].items()}
+            check.adjusted = {o: float(v) for o, v in p.items()}
+            check.state = next(
+                (
+                    o
+                    for o in (EQUIVALENT, HOLDS, FAILS)
+                    if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED
+                ),
+                INCONCLUSIVE,
+            )
     for check in checks:
         if check.not_testable:
-            check.state, check.adjusted = NOT_TESTABLE, {}
-            continue
-        if check.primary:
-            p = check.p_values()
-        else:
-            k = secondary.index(check)
-            p = {o: families[o][k] for o in raw[k]}
-        check.adjusted = {o: float(v) for o, v in p.items()}
-        check.state = next(
-            (
-                o
-                for o in (EQUIVALENT, HOLDS, FAILS)
-                if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED
-            ),
-            INCONCLUSIVE,
-        )
+            check.state, check.adjusted, check.unadjusted = NOT_TESTABLE, {}, {}

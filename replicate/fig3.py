@@ -211,7 +211,8 @@ def aggregate_metrics(
 ) -> dict[str, Any] | None:
     """IQM, performance profiles and probability of improvement over the envs that have
     demonstrations, on final returns divided by the demonstrations' return (Agarwal et
-    al. 2021); every algorithm takes the same number of runs per env (the smallest)."""
+    al. 2021). An algorithm takes the same number of runs on every env (its smallest cell's,
+    its first seeds), which the stratified bootstrap needs; algorithms may differ."""
     algos = sorted({a for _, a in groups})
     tasks = [
         e
@@ -220,11 +221,13 @@ def aggregate_metrics(
     ]
     if not tasks or not algos:
         return None
-    runs = min(len(groups[(e, a)].finals) for e in tasks for a in algos)
-    if runs < 2:
+    runs = {a: min(len(groups[(e, a)].finals) for e in tasks) for a in algos}
+    if min(runs.values()) < 2:
         return None
     scores = {
-        a: np.stack([groups[(e, a)].finals[:runs] / abs(demo_returns[e]) for e in tasks], axis=1)
+        a: np.stack(
+            [groups[(e, a)].finals[: runs[a]] / abs(demo_returns[e]) for e in tasks], axis=1
+        )
         for a in algos
     }
     taus = np.linspace(0.0, 1.2, 49)
@@ -251,28 +254,32 @@ REACH_FRACTION = 0.5  # sample efficiency: env steps to half of the demonstratio
 def efficiency_rows(
     groups: dict[tuple[str, str], Group], demo_returns: dict[str, float]
 ) -> list[dict[str, Any]]:
-    """Per (env, algorithm) with demonstrations: area under the curve and env steps to reach
-    ``REACH_FRACTION`` of the demonstrations' return, each with a t-interval over seeds."""
-
-    def estimate(values: np.ndarray) -> dict[str, Any]:
-        values = values[np.isfinite(values)]
-        if not len(values):
-            return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "n": 0}
-        est = t_mean(values)
-        return {"mean": est.value, "low": est.low, "high": est.high, "n": int(len(values))}
-
+    """Per (env, algorithm) with demonstrations: area under the curve with a t-interval
+    over seeds, and how soon seeds reach ``REACH_FRACTION`` of the demonstrations' return:
+    how many do, the fastest and slowest of them, and the step by which half of all seeds
+    have (a seed that never reaches it counts as beyond the budget, so no mean or interval
+    is taken over the seeds that happen to reach it)."""
     rows = []
     for (env_id, algo), group in sorted(groups.items()):
         if env_id not in demo_returns:
             continue
         level = REACH_FRACTION * demo_returns[env_id]
+        area = t_mean(group.areas)
+        reached = np.sort(steps_to_reach(group.steps, group.curves, level))
+        reached = reached[np.isfinite(reached)]
+        half = -(-len(group.seeds) // 2)  # half of the seeds, rounded up
         rows.append(
             {
                 "env_id": env_id,
                 "algo": algo,
                 "n": len(group.seeds),
-                "area": estimate(group.areas),
-                "reach": estimate(steps_to_reach(group.steps, group.curves, level)),
+                "area": {"mean": area.value, "low": area.low, "high": area.high, "n": area.n},
+                "reach": {
+                    "n": int(len(reached)),
+                    "half_of_seeds": float(reached[half - 1]) if len(reached) >= half else None,
+                    "fastest": float(reached[0]) if len(reached) else None,
+                    "slowest": float(reached[-1]) if len(reached) else None,
+                },
                 "level": level,
             }
         )

@@ -180,7 +180,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
     ]
 
     # One family of checks, Holm-adjusted: "DRL-EG minus X above 0" per task and method,
-    # paired where the two ran the same seeds; within +-SMALLEST_EFFECT: equivalent.
+    # paired with SAC only (shared initial weights); within +-SMALLEST_EFFECT: equivalent.
     checks = []
     for task in tasks:
         if (task, "drl-eg") not in by_cell:
@@ -211,6 +211,7 @@ def compare(runs: list[Run], budgets: dict[str, tuple[int, int]], seed: int) -> 
             "method": c.estimate.label,
             "quantity": c.estimate.as_dict(),
             "p_adjusted": c.adjusted,
+            "p_unadjusted": c.unadjusted,
             "verdict": words.get(c.state, c.state),
             "decide": (what_would_decide(c, len(checks)) or (None,))[0],
         }

@@ -60,6 +60,7 @@ class MeanEstimate:
     df: float
     n_other: int | None = None  # Welch: the second group's runs
     confidence: float = CONFIDENCE
+    variances: tuple[float, float] | None = None  # Welch: each group's per-seed variance
 
     @property
     def label(self) -> str:
@@ -197,8 +198,9 @@ def welch_mean_difference(
     else:  # a constant group contributes no variance and no degrees of freedom
         df = float((va + vb) ** 2 / ((va**2 / (len(a) - 1)) + (vb**2 / (len(b) - 1))))
     low, high = _t_bounds(value, se, df, confidence)
+    variances = (float(a.var(ddof=1)), float(b.var(ddof=1)))
     return MeanEstimate(
-        quantity, value, low, high, WELCH_METHOD, len(a), se, df, len(b), confidence
+        quantity, value, low, high, WELCH_METHOD, len(a), se, df, len(b), confidence, variances
     )
 
 
@@ -210,10 +212,12 @@ def seed_matched_difference(
     confidence: float = CONFIDENCE,
 ) -> MeanEstimate:
     """mean(a) - mean(b) over runs keyed by seed: paired over the shared seeds when ``pair``
-    (the two share initial weights by design) or when both ran exactly the same seeds (same
-    env streams); Welch over every run of each otherwise."""
-    common = sorted(set(a) & set(b))
-    if pair or (set(a) == set(b) and len(common) >= 2):
+    (the two algorithms share initial weights seed by seed by design), Welch over every run
+    of each otherwise. Equal seed numbers alone do not pair two runs: unrelated algorithms
+    started from the same seed share no weights, and matching them would make the interval
+    depend on an arbitrary matching."""
+    if pair:
+        common = sorted(set(a) & set(b))
         return paired_mean_difference(
             np.array([a[s] for s in common]), np.array([b[s] for s in common]), quantity, confidence
         )
@@ -254,29 +258,56 @@ def holm(p_values: list[float]) -> list[float]:
     return adjusted.tolist()
 
 
+DECIDING_CHANCE = 0.8  # "what would decide it" asks for an 80% chance, not a coin flip
+
+
+def _projected(estimate: MeanEstimate, n: int) -> tuple[float, float]:
+    """Standard error and degrees of freedom of ``estimate`` at n seeds (per group; pairs
+    for a paired difference), if each group's observed per-seed spread held."""
+    if estimate.n_other is None:
+        return estimate.se * np.sqrt(estimate.n / n), float(n - 1)
+    va, vb = estimate.variances or (estimate.se**2 * estimate.n / 2,) * 2
+    se = float(np.sqrt((va + vb) / n))
+    if va + vb == 0:
+        return se, float(2 * n - 2)
+    return se, float((va + vb) ** 2 * (n - 1) / (va**2 + vb**2))  # Welch-Satterthwaite
+
+
+def chance_to_decide(
+    estimate: MeanEstimate, route: tuple[float, ...], n: int, confidence: float
+) -> float:
+    """The chance that every one-sided test of ``route`` rejects at n seeds (each at the
+    one-sided level of a ``confidence`` interval), if the true value lay each distance in
+    ``route`` beyond its bound and the observed spread held: noncentral t power, combined by
+    Bonferroni's inequality (a lower bound) when the route needs two tests."""
+    se, df = _projected(estimate, n)
+    if se == 0:
+        return 1.0
+    critical = stats.t.ppf(0.5 + confidence / 2, df)
+    misses = sum(1.0 - float(stats.nct.sf(critical, df, d / se)) for d in route)
+    return max(0.0, 1.0 - misses)
+
+
 def seeds_to_decide(
-    estimate: MeanEstimate, distance: float, confidence: float | None = None, limit: int = 200
+    estimate: MeanEstimate,
+    routes: list[tuple[float, ...]],
+    confidence: float | None = None,
+    chance: float = DECIDING_CHANCE,
+    limit: int = 200,
 ) -> int | None:
-    """How many seeds (per group; pairs for a paired difference) would make the interval
-    narrow enough to decide a check whose estimate lies ``distance`` from what decides it,
-    if the observed mean and spread held: the smallest n whose t-interval half-width is
-    below ``distance``. None when no n up to ``limit`` does (an effect at the threshold) or
-    the spread is unknown."""
+    """How many seeds (per group; pairs for a paired difference) would give the check a
+    ``chance`` of being decided, if the observed mean and spread were the truth: the
+    smallest n at which one of ``routes`` (the ways it could be decided, each the distances
+    from the estimate to the bounds its tests must clear) reaches that chance. None when no
+    n up to ``limit`` does, or the spread is unknown."""
     confidence = estimate.confidence if confidence is None else confidence
-    if not np.isfinite(estimate.se) or estimate.n < 2 or distance <= 0:
+    routes = [r for r in routes if r and min(r) > 0]
+    if not np.isfinite(estimate.se) or estimate.n < 2 or not routes:
         return None
     if estimate.se == 0:
         return estimate.n
-    if estimate.n_other is None:
-        variance = estimate.se**2 * estimate.n  # the per-seed variance, as observed
-        for n in range(2, limit + 1):
-            if stats.t.ppf(0.5 + confidence / 2, n - 1) * np.sqrt(variance / n) < distance:
-                return n
-        return None
-    # Welch: both groups grow to n seeds each, keeping their observed variances
-    variance = estimate.se**2 / (1 / estimate.n + 1 / estimate.n_other)
     for n in range(2, limit + 1):
-        if stats.t.ppf(0.5 + confidence / 2, 2 * n - 2) * np.sqrt(2 * variance / n) < distance:
+        if max(chance_to_decide(estimate, r, n, confidence) for r in routes) >= chance:
             return n
     return None
 

@@ -19,10 +19,11 @@ from replicate.checks import (
     Group,
     decide,
 )
-from replicate.stats import CONFIDENCE, seeds_to_decide
+from replicate.stats import CONFIDENCE, DECIDING_CHANCE, seeds_to_decide
 from replicate.templating import count_seeds
 
 REPRODUCED, PARTLY, NOT_REPRODUCED = "reproduced", "partly reproduced", "not reproduced"
+MOST_SEEDS = 200  # beyond this, "what would decide it" stops counting
 
 
 def _hours(steps: int, rate: float, processes: int) -> str:
@@ -31,24 +32,26 @@ def _hours(steps: int, rate: float, processes: int) -> str:
 
 
 def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
-    """For an inconclusive check: how many seeds would decide it if the observed effect and
-    spread held (a secondary check at the Bonferroni level of its ``family``, which Holm's
-    adjustment never asks more than), and what they would cost at the rates of the store's
-    runs; in full and in short (for the front door)."""
+    """For an inconclusive check: how many seeds would give it an 80% chance of being
+    decided if the observed effect and spread held (a secondary check at the Bonferroni
+    level of its ``family``, which Holm's adjustment never asks more than), and what they
+    would cost at the rates of the store's runs; in full and in short (for the front
+    door)."""
     if check.state != INCONCLUSIVE:
         return None
     est = check.estimate
     if not est.defined:
         return ("a second seed: one run gives no interval",) * 2
     level = CONFIDENCE if check.primary else 1 - (1 - CONFIDENCE) / max(family, 1)
-    needed = seeds_to_decide(est, check.distance(), level)
+    needed = seeds_to_decide(est, check.routes(), level, limit=MOST_SEEDS)
     unit = "pairs" if est.method.startswith("paired") else "seeds"
     if needed is None:
         text = (
-            "no number of seeds at this budget: the estimate sits at what decides the "
-            "check; only a longer budget (where the effect may differ) can"
+            f"more than {MOST_SEEDS} {unit} at this budget: the estimate lies "
+            f"{check.distance():.3g} from what decides the check, small against the "
+            "seeds' spread; only a longer budget (where the effect may differ) can"
         )
-        return text, "no number of seeds at this budget; a longer budget might"
+        return text, f"more than {MOST_SEEDS} {unit} at this budget; a longer budget might"
     per_group = (
         [needed - est.n] * len(check.groups)
         if est.n_other is None
@@ -56,9 +59,10 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
     )
     extra_runs = sum(max(0, k) for k in per_group)
     text = (
-        f"about {needed} {unit} (the smallest n whose {level * 100:.3g}% {est.method} is "
-        f"narrower than the distance {check.distance():.3g} to what decides it, at the "
-        "observed mean and spread)"
+        f"about {needed} {unit} (the smallest n at which its {level * 100:.3g}% "
+        f"{est.method} would decide it with a {DECIDING_CHANCE:.0%} chance, if the observed "
+        f"mean and spread were the truth; the estimate lies {check.distance():.3g} from "
+        "what decides it)"
     )
     short = f"about {needed} {unit}"
     budget = max((g.budget or 0) for g in check.groups) if check.groups else 0

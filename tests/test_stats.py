@@ -61,8 +61,9 @@ def test_welch_matches_scipy_and_seed_matching_chooses_the_design():
     est = welch_mean_difference(a, b)
     assert est.p_two_sided == pytest.approx(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue)
     assert est.label == "95% Welch t-interval, 4 vs 5 seeds"
+    # equal seed numbers alone do not pair: unrelated algorithms share no initial weights
     same = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 2: 1.0})
-    assert same.label.startswith("95% paired")
+    assert same.label == "95% Welch t-interval, 3 vs 3 seeds"
     differ = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 5: 1.0})
     assert differ.label.startswith("95% Welch")
     forced = seed_matched_difference({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.5, 5: 1.0}, pair=True)
@@ -84,12 +85,44 @@ def test_holm_hand_computed():
 
 def test_seeds_to_decide_grows_as_the_effect_shrinks():
     est = t_mean(np.array([0.0, 2.0, 4.0]))  # mean 2, sd 2
-    far, near = seeds_to_decide(est, 3.0), seeds_to_decide(est, 0.5)
+    far, near = seeds_to_decide(est, [(3.0,)]), seeds_to_decide(est, [(0.5,)])
     assert far is not None and near is not None and far < near
-    # at that n the half-width is below the distance, one fewer it is not
-    half = scipy_stats.t.ppf(0.975, near - 1) * 2 / np.sqrt(near)
-    assert half < 0.5 <= scipy_stats.t.ppf(0.975, near - 2) * 2 / np.sqrt(near - 1)
-    assert seeds_to_decide(est, 1e-6) is None
+    assert seeds_to_decide(est, [(1e-3,)]) is None  # more than the limit
+    assert seeds_to_decide(est, [(0.0,)]) is None  # at the threshold: no route
+    # two tests to clear (equivalence) ask for more seeds than the nearer one alone
+    assert seeds_to_decide(est, [(1.0, 1.0)]) > seeds_to_decide(est, [(1.0,)])
+
+
+def _lower_bounds(rng, n: int, mean_sd: tuple[float, float], other_sd: float | None):
+    """The 95% interval's lower bound over 20,000 simulated samples of n seeds: a paired
+    difference (``other_sd`` None) or a Welch difference from a second group of mean 0."""
+    a = rng.normal(*mean_sd, (20_000, n))
+    if other_sd is None:
+        se, df = a.std(axis=1, ddof=1) / np.sqrt(n), n - 1
+        return a.mean(axis=1) - scipy_stats.t.ppf(0.975, df) * se
+    b = rng.normal(0.0, other_sd, (20_000, n))
+    va, vb = a.var(axis=1, ddof=1) / n, b.var(axis=1, ddof=1) / n
+    df = (va + vb) ** 2 / (va**2 / (n - 1) + vb**2 / (n - 1))
+    return a.mean(axis=1) - b.mean(axis=1) - scipy_stats.t.ppf(0.975, df) * np.sqrt(va + vb)
+
+
+def test_seeds_to_decide_gives_the_interval_an_80_percent_chance():
+    """Simulated with the observed mean and spread: at the n it names, about 80% of
+    samples give an interval wholly past the threshold; one seed fewer, fewer do (a paired
+    difference, and a Welch difference of unequal spreads)."""
+    rng = np.random.default_rng(0)
+    paired = t_mean(np.array([0.0, 2.0, 4.0]), method="paired t-interval")  # mean 2, sd 2
+    welch = welch_mean_difference(np.array([1.0, 2.0, 3.0, 4.0, 5.0]), np.array([0.0, 4.0, -4.0]))
+    for est, threshold, mean_sd, other_sd in (
+        (paired, 1.0, (2.0, 2.0), None),
+        (welch, 1.0, (3.0, np.sqrt(2.5)), 4.0),
+    ):
+        n = seeds_to_decide(est, [(est.value - threshold,)])
+        assert n is not None and n > 2
+        chances = [
+            float(np.mean(_lower_bounds(rng, m, mean_sd, other_sd) > threshold)) for m in (n - 1, n)
+        ]
+        assert chances[0] < 0.8 <= chances[1] + 0.01, (est.method, n, chances)
 
 
 def test_hedges_g_hand_computed():
