@@ -22,7 +22,7 @@ def _install(session: nox.Session, *extras: str) -> None:
 
 @nox.session(python=PYTHON)
 def tests(session: nox.Session) -> None:
-    """The test suite (smoke budgets only; a few minutes on 2 cores)."""
+    """The test suite (smoke budgets only; about 12 minutes on 2 cores)."""
     _install(session, "test")
     session.run("pytest", "-q", *session.posargs, env={"MUJOCO_GL": "disable"})
 
@@ -94,13 +94,10 @@ def bench(session: nox.Session) -> None:
     session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", env=env)
     # the trainer's stacked networks against torch.vmap over ordinary modules, one V-SAC step
     session.run("python", "benchmarks/stacked_vs_vmap.py", env=env)
-    session.run(
-        "python",
-        "-c",
-        "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)",
-        success_codes=[0, 1],
-        env=env,
-    )
+    # the GPU section, where torch sees a GPU
+    probe = "import torch; print(torch.cuda.is_available())"
+    if str(session.run("python", "-c", probe, silent=True, env=env)).strip().endswith("True"):
+        session.run("python", "benchmarks/batched.py", "--gpu", env=env)
     # micro-benchmarks, saved so that two commits compare (pytest-benchmark compare)
     session.run(
         "pytest",

@@ -121,8 +121,8 @@ PROFILES: dict[str, Profile] = {
         eval_episodes=5,
         seeds=5,
         summary="every env: MuJoCo at 200k env steps (Fig. 4: Ant at 500k), the paper's "
-        "networks and hyperparameters; about 26M off-policy env steps, about 60 "
-        "core-hours on CPU",
+        "networks and hyperparameters; about 26M off-policy env steps, 70 to 100 "
+        "core hours on CPU (75 to 110 env steps/s per core in seed batches)",
     ),
     "paper": Profile(
         "paper",
