@@ -48,9 +48,13 @@ def git_revision() -> str:
     return "unknown"
 
 
+TRAINING_CODE = ("envs", "baselines", "replicate", "pyproject.toml")
+
+
 def revision_at(where: Path) -> str:
-    """The commit checked out at ``where``, with '+dirty' when tracked files changed outside
-    the run store and the reports (what the harness itself writes is not code)."""
+    """The commit checked out at ``where``, with '+dirty' when tracked files of the code a
+    run executes changed (the packages and pyproject.toml; not docs, tests, the run store or
+    the reports)."""
     rev = subprocess.run(
         ["git", "-C", str(where), "rev-parse", "HEAD"],
         capture_output=True,
@@ -67,9 +71,7 @@ def revision_at(where: Path) -> str:
             "--porcelain",
             "--untracked-files=no",
             "--",
-            ":(top)",
-            ":(top,exclude)runs",
-            ":(top,exclude)reports",
+            *(f":(top){path}" for path in TRAINING_CODE),
         ],
         capture_output=True,
         text=True,
