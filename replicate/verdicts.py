@@ -60,7 +60,7 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
     extra_runs = sum(max(0, k) for k in per_group)
     text = (
         f"about {needed} {unit} (the smallest n at which its {level * 100:.3g}% "
-        f"{est.method} would decide it with a {DECIDING_CHANCE:.0%} chance, if the observed "
+        f"{est.method} would decide it with an {DECIDING_CHANCE:.0%} chance, if the observed "
         f"mean and spread were the truth; the estimate lies {check.distance():.3g} from "
         "what decides it)"
     )
