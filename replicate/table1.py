@@ -12,8 +12,9 @@ from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError
 from replicate.templating import report_environment
 
-# The demonstrations' mean return that published SAC reaches at 1M steps (the targets for
-# the harness's experts; replicate/data/published/sac_mujoco.csv has sources).
+# The targets for the harness's experts (the demonstrations' mean return): within or just
+# below the range that published twin-Q SAC (SB3 zoo, CleanRL, Tianshou) reaches at 1M steps
+# (replicate/data/published/sac_mujoco.csv has the sources).
 EXPERT_TARGETS = {
     "Hopper-v5": 3000.0,
     "Walker2d-v5": 4000.0,
