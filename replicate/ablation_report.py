@@ -25,7 +25,6 @@ from replicate.profiles import GridOutcome, Profile
 from replicate.provenance import portable_path
 from replicate.stats import t_mean
 from replicate.store import Run
-from replicate.templating import report_environment
 
 
 def admitted_share(
@@ -228,7 +227,7 @@ def write_ablation_report(
     t2_rule: dict[str, Any] | None = None,
 ) -> Path:
     from replicate import provenance
-    from replicate.report import _atomic_write, mujoco_threats, summary_bytes
+    from replicate.report import mujoco_threats, write_report
 
     def estimate(values: list[float]) -> dict[str, Any]:
         if not values:
@@ -290,10 +289,6 @@ def write_ablation_report(
         # under every T2 of the sweep, so no single guided share stands for it
         "threats": mujoco_threats([r for c in cells for r in c.runs] + sac_runs, guidance=False),
     }
-    environment = report_environment()
-    html = environment.get_template("ablation.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
     summary = {
         "profile": profile.name,
         "env_id": env_id,
@@ -309,5 +304,4 @@ def write_ablation_report(
         "threats": context["threats"],
         "generated": context["generated"],
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "ablation.html", context, summary)

@@ -24,7 +24,6 @@ from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Pro
 from replicate.published import FAMILY_TITLES, published_points
 from replicate.report import (
     REPORT_SEED,
-    _atomic_write,
     claim_groups,
     curve_matrix,
     demo_returns,
@@ -33,8 +32,8 @@ from replicate.report import (
     ledger,
     published_rows,
     sac_standing,
-    summary_bytes,
     threats_to_validity,
+    write_report,
 )
 from replicate.spec import RunSpec
 from replicate.stats import (
@@ -48,7 +47,6 @@ from replicate.stats import (
     t_mean_columns,
 )
 from replicate.store import Run
-from replicate.templating import report_environment
 
 FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
 
@@ -383,10 +381,6 @@ def write_figure3_report(
         "sac_standing": sac_standing(published),
         "family_titles": FAMILY_TITLES,
     }
-    env = report_environment()
-    html = env.get_template("fig3.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
     summary = {
         "profile": profile.name,
         "generated": context["generated"],
@@ -424,5 +418,4 @@ def write_figure3_report(
         "budgets": {b["env_id"]: b["steps"] for b in budgets},
         "threats": context["threats"],
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "fig3.html", context, summary)

@@ -30,17 +30,15 @@ from replicate.grids import (
 )
 from replicate.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.report import (
-    _atomic_write,
     claim_groups,
     ledger,
     published_rows,
-    summary_bytes,
     threats_to_validity,
+    write_report,
 )
 from replicate.spec import RunSpec
 from replicate.stats import CONFIDENCE, paired_mean_difference
 from replicate.store import Run
-from replicate.templating import report_environment
 
 FIG4_ENV = "Ant-v5"
 FIG4_SEEDS = PAPER_FIG4_SEEDS  # the paper's four fixed seeds; claim 5 counts them too
@@ -243,9 +241,6 @@ def write_figure4_report(
             paper_seeds=PAPER_FIG4_SEEDS,
         ),
     }
-    env = report_environment()
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", env.get_template("fig4.html").render(**context).encode())
     summary = {
         "profile": profile.name,
         "env_id": env_id,
@@ -260,5 +255,4 @@ def write_figure4_report(
         "missing": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
         "failed": [{"run_id": i, "reason": why} for i, why in outcome.failed],
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "fig4.html", context, summary)

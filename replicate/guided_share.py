@@ -70,8 +70,7 @@ def guided_share_png(runs: list[Run], title: str) -> bytes:
 
 
 def write_guided_share_report(runs: list[Run], profile: str, out_dir: Path) -> Path:
-    from replicate.report import _atomic_write, summary_bytes
-    from replicate.templating import report_environment
+    from replicate.report import write_report
 
     cells: dict[tuple[str, str], list[Run]] = defaultdict(list)
     for run in runs:
@@ -96,17 +95,13 @@ def write_guided_share_report(runs: list[Run], profile: str, out_dir: Path) -> P
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "figure_png_b64": base64.b64encode(guided_share_png(runs, title)).decode(),
     }
-    html = report_environment().get_template("guided_share.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
     summary = {
         "profile": profile,
         "generated": context["generated"],
         "run_ids": [run for row in rows for run in row["runs"]],
         "rows": rows,
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "guided_share.html", context, summary)
 
 
 def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path | None:

@@ -118,8 +118,7 @@ def curves_png(runs: list[Run], title: str) -> bytes:
 
 
 def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path) -> Path:
-    from replicate.report import _atomic_write, summary_bytes
-    from replicate.templating import report_environment
+    from replicate.report import write_report
 
     rows = comparison_rows(outcome.runs)
     title = f"SAC's random start against the default start, profile '{profile}'"
@@ -131,9 +130,6 @@ def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path)
         "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "figure_png_b64": base64.b64encode(curves_png(outcome.runs, title)).decode(),
     }
-    html = report_environment().get_template("random_start.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
     summary = {
         "profile": profile,
         "generated": context["generated"],
@@ -141,8 +137,7 @@ def write_random_start_report(outcome: GridOutcome, profile: str, out_dir: Path)
         "rows": rows,
         "missing": [{"env_id": e, "algo": a, "reason": why} for e, a, why in outcome.skipped],
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "random_start.html", context, summary)
 
 
 def run_random_start(

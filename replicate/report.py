@@ -215,6 +215,20 @@ def summary_bytes(summary: dict[str, Any]) -> bytes:
     return (json.dumps(strict(summary), indent=2, default=float, allow_nan=False) + "\n").encode()
 
 
+def write_report(
+    out_dir: Path, template: str, context: dict[str, Any], summary: dict[str, Any]
+) -> Path:
+    """A report: ``template`` rendered with ``context`` as ``out_dir/index.html`` and
+    ``summary`` beside it as summary.json, each replaced atomically; the page's path."""
+    from replicate.templating import report_environment
+
+    out_dir = Path(out_dir)
+    html = report_environment().get_template(template).render(**context)
+    _atomic_write(out_dir / "index.html", html.encode())
+    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
+    return out_dir / "index.html"
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")

@@ -40,7 +40,6 @@ from replicate.stats import (
     stratified_bootstrap_ci,
     substream,
 )
-from replicate.templating import report_environment
 from replicate.verdicts import what_would_decide
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
@@ -329,7 +328,7 @@ def write_rlfd_report(
     """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
     ``guidance`` (``drl_eg_settings.guidance_settings``) is printed beside the verdicts."""
     from replicate import provenance
-    from replicate.report import _atomic_write, mujoco_threats, summary_bytes
+    from replicate.report import mujoco_threats, write_report
 
     budgets = RLFD_BUDGETS[profile.name]
     result = compare(outcome.runs, budgets, REPORT_SEED)
@@ -352,10 +351,6 @@ def write_rlfd_report(
         "revisions": sorted({r.provenance["git_revision"] for r in outcome.runs})
         or [provenance.git_revision()],
     }
-    environment = report_environment()
-    html = environment.get_template("rlfd.html").render(**context)
-    out_dir = Path(out_dir)
-    _atomic_write(out_dir / "index.html", html.encode())
     summary = {
         "profile": profile.name,
         "generated": context["generated"],
@@ -373,8 +368,7 @@ def write_rlfd_report(
         "git_revisions": context["revisions"],
         "threats": context["threats"],
     }
-    _atomic_write(out_dir / "summary.json", summary_bytes(summary))
-    return out_dir / "index.html"
+    return write_report(out_dir, "rlfd.html", context, summary)
 
 
 def _other_profiles(profile: str, out_dir: Path) -> list[dict[str, Any]]:
