@@ -97,7 +97,8 @@ def bench(session: nox.Session) -> None:
     # the GPU section, where torch sees a GPU
     probe = "import torch; print(torch.cuda.is_available())"
     if str(session.run("python", "-c", probe, silent=True, env=env)).strip().endswith("True"):
-        session.run("python", "benchmarks/batched.py", "--gpu", env=env)
+        gpu_out = "reports/bench/batched_gpu.json"  # beside the CPU sections' file, not over it
+        session.run("python", "benchmarks/batched.py", "--gpu", "--out", gpu_out, env=env)
     # micro-benchmarks, saved so that two commits compare (pytest-benchmark compare)
     session.run(
         "pytest",

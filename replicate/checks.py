@@ -151,21 +151,21 @@ class Check:
             return max(gap, self.smallest_effect - gap)
         return gap
 
-    def routes(self) -> list[tuple[float, ...]]:
-        """The ways the check could be decided from where its estimate lies, each the
-        distances from the estimate to the bounds its one-sided tests must clear: beyond
-        the threshold on the estimate's side, or (with a smallest effect of interest, from
-        inside it) within the band, two tests."""
+    def routes(self) -> list[tuple[str, tuple[float, ...]]]:
+        """The ways the check could be decided from where its estimate lies: each an outcome
+        and the distances from the estimate to the bounds its one-sided tests must clear:
+        beyond the threshold on the estimate's side, or (with a smallest effect of interest,
+        from inside it) within the band, two tests."""
         value = self.estimate.value
         if self.within is not None:
             low, high = self.within
             if low < value < high:
-                return [(value - low, high - value)]
-            return [(max(low - value, value - high),)]
+                return [(HOLDS, (value - low, high - value))]
+            return [(FAILS, (max(low - value, value - high),))]
         gap = abs(value - self.above)
-        routes = [(gap,)]
+        routes = [(HOLDS if value > self.above else FAILS, (gap,))]
         if self.smallest_effect and gap < self.smallest_effect:
-            routes.append((self.smallest_effect - gap, self.smallest_effect + gap))
+            routes.append((EQUIVALENT, (self.smallest_effect - gap, self.smallest_effect + gap)))
         return routes
 
     def as_dict(self) -> dict[str, Any]:

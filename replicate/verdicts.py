@@ -31,27 +31,44 @@ def _hours(steps: int, rate: float, processes: int) -> str:
     return f"{hours:.1f} h" if hours >= 1 else f"{hours * 60:.0f} min"
 
 
-def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
+def what_would_decide(check: Check, family: int, primaries: int = 1) -> tuple[str, str] | None:
     """For an inconclusive check: how many seeds would give it an 80% chance of being
-    decided if the observed effect and spread held (a secondary check at the Bonferroni
-    level of its ``family``, which Holm's adjustment never asks more than), and what they
-    would cost at the rates of the store's runs; in full and in short (for the front
-    door)."""
+    decided if the observed effect and spread held, and what they would cost at the rates
+    of the store's runs; in full and in short (for the front door). Each way of deciding it
+    is counted at the level it is tested at: a secondary check at the Bonferroni level of
+    its ``family`` (which Holm's adjustment never asks more than), a primary check's "fails"
+    and "equivalent" at the Bonferroni level of the claim's ``primaries``."""
     if check.state != INCONCLUSIVE:
         return None
     est = check.estimate
     if not est.defined:
         return ("a second seed: one run gives no interval",) * 2
-    level = CONFIDENCE if check.primary else 1 - (1 - CONFIDENCE) / max(family, 1)
-    needed = seeds_to_decide(est, check.routes(), level, limit=MOST_SEEDS)
     unit = "pairs" if est.method.startswith("paired") else "seeds"
-    if needed is None:
+    routes = check.routes()
+    if not any(min(distances) > 0 for _, distances in routes):
+        text = (
+            "no number of seeds at this budget: the estimate sits exactly at what decides "
+            "the check; only a longer budget (where the effect may differ) can"
+        )
+        return text, "no number of seeds at this budget; a longer budget might"
+
+    def level(outcome: str) -> float:
+        tests = family if not check.primary else (1 if outcome == HOLDS else primaries)
+        return 1 - (1 - CONFIDENCE) / max(tests, 1)
+
+    options = [
+        (n, level(outcome))
+        for outcome, distances in routes
+        if (n := seeds_to_decide(est, [distances], level(outcome), limit=MOST_SEEDS))
+    ]
+    if not options:
         text = (
             f"more than {MOST_SEEDS} {unit} at this budget: the estimate lies "
             f"{check.distance():.3g} from what decides the check, small against the "
             "seeds' spread; only a longer budget (where the effect may differ) can"
         )
         return text, f"more than {MOST_SEEDS} {unit} at this budget; a longer budget might"
+    needed, needed_level = min(options)
     per_group = (
         [needed - est.n] * len(check.groups)
         if est.n_other is None
@@ -59,7 +76,7 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
     )
     extra_runs = sum(max(0, k) for k in per_group)
     text = (
-        f"about {needed} {unit} (the smallest n at which its {level * 100:.3g}% "
+        f"about {needed} {unit} (the smallest n at which its {needed_level * 100:.3g}% "
         f"{est.method} would decide it with an {DECIDING_CHANCE:.0%} chance, if the observed "
         f"mean and spread were the truth; the estimate lies {check.distance():.3g} from "
         "what decides it)"
@@ -87,9 +104,10 @@ def judge(
     test needs no correction), with the secondary checks listed."""
     decide(checks)
     family = sum(1 for c in checks if not c.primary and not c.not_testable)
+    primaries = sum(1 for c in checks if c.primary and not c.not_testable)
     shorts = []
     for check in checks:
-        full_and_short = what_would_decide(check, family)
+        full_and_short = what_would_decide(check, family, primaries)
         check.decide = check.not_testable or (full_and_short[0] if full_and_short else None)
         if check.primary and check.decide:
             where_ = check.estimate.quantity.split(":")[0].split(" at ")[0]

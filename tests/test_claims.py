@@ -163,6 +163,32 @@ def test_secondary_checks_are_holm_adjusted_and_primary_ones_are_not():
     assert raw < 0.025 and checks[1].state == "inconclusive"  # passes alone, not in a family
 
 
+def test_two_primaries_fail_only_after_holm_and_ask_more_seeds_to_fail():
+    """Claims judged on two envs: 'holds' needs both at the plain level, while either env
+    failing would make the claim not reproduced, so "fails" is Holm-adjusted over the two,
+    and what would decide a failing-side estimate is counted at that level."""
+    from replicate.verdicts import what_would_decide
+
+    below = t_mean(np.array([-0.2, -1.0, -1.6, -2.4, -0.8]))  # fails alone at p about 0.016
+    above = t_mean(np.array([0.1, 0.3, 0.2, 0.4, 0.25]))  # holds
+    one = Check("one env", below, above=0.0, primary=True)
+    two = [
+        Check("env a", below, above=0.0, primary=True),
+        Check("env b", above, above=0.0, primary=True),
+    ]
+    decide([one])
+    decide(two)
+    assert one.state == "fails" and two[0].state == "inconclusive" and two[1].state == "holds"
+    assert two[0].adjusted["fails"] == pytest.approx(2 * one.adjusted["fails"])
+    open_one = Check(
+        "open", t_mean(np.array([0.5, -1.0, -1.6, -2.4, 0.8])), above=0.0, primary=True
+    )
+    decide([open_one])
+    alone = what_would_decide(open_one, family=0, primaries=1)[1]
+    of_two = what_would_decide(open_one, family=0, primaries=2)[1]
+    assert int(alone.split()[1]) < int(of_two.split()[1])  # "about N pairs"
+
+
 def test_missing_runs_smoke_and_profiles_that_do_not_judge_mujoco():
     ledger = judge_claims({}, {}, meaningful=True, fig4_groups={})
     assert [c["id"] for c in ledger] == [1, 2, 3, 4, 5]
