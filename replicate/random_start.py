@@ -144,10 +144,11 @@ def run_random_start(
     profile: str = "reduced",
     store: Path = Path("runs"),
     out_dir: Path | None = None,
+    envs: list[str] | None = None,
     options: GridOptions | None = None,
 ) -> Path | None:
-    """Train what the study lacks (the random-start runs; the default start's are Fig. 3's)
-    and write its report."""
+    """Train what the study lacks (the random-start runs; the default start's are Fig. 3's;
+    only on ``envs`` when given) and write its report from every run of the study."""
     from replicate.experiments import GridOptions
     from replicate.grids import train_and_report
 
@@ -160,6 +161,7 @@ def run_random_start(
         Path(store),
         out,
         lambda outcome, where: write_random_start_report(outcome, profile, where),
+        envs=envs,
         options=options or GridOptions(),
     )
 
@@ -201,6 +203,14 @@ def _declare_command(sub: Any) -> None:
         "report directory (default: reports/<profile>/random-start)",
         profile_default="reduced",
         seeds_help=None,
+    )
+    start.add_argument(
+        "--envs",
+        nargs="+",
+        default=None,
+        metavar="ENV",
+        help="train only on these of the study's envs (the report still shows every "
+        "env's stored runs)",
     )
 
 

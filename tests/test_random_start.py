@@ -98,6 +98,15 @@ def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
     }
 
 
+def test_envs_limits_what_the_study_trains(capsys):
+    from replicate.cli import main
+
+    args = ["random-start", "--profile", "reduced", "--workers", "1", "--dry-run"]
+    assert main([*args, "--envs", "HalfCheetah-v5"]) == 0
+    planned = capsys.readouterr().out
+    assert "HalfCheetah-v5" in planned and "Ant-v5" not in planned
+
+
 @pytest.mark.slow
 def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
     from replicate.cli import main
