@@ -121,6 +121,7 @@ def run_figure3(
             out,
             guidance_settings(profile, outcome.runs, specs),
             _figure4_runs(profile, Path(store)),
+            _random_start_rows(profile, Path(store)),
         ),
         algos,
         envs,
@@ -154,7 +155,15 @@ def rebuild_figure3(
         out_dir,
         guidance_settings(profile, outcome.runs, specs),
         _figure4_runs(profile, Path(store)),
+        _random_start_rows(profile, Path(store)),
     )
+
+
+def _random_start_rows(profile: str, store: Path) -> list[dict[str, Any]]:
+    """The random-start study's rows from the store (the threats box reports its effect)."""
+    from replicate.random_start import stored_rows
+
+    return stored_rows(profile, store)
 
 
 def _figure4_runs(profile: str, store: Path) -> list[Run]:
@@ -301,10 +310,13 @@ def write_figure3_report(
     out_dir: Path,
     guidance: list[dict[str, Any]] | None = None,
     fig4_runs: list[Run] | None = None,
+    random_start_rows: list[dict[str, Any]] | None = None,
 ) -> Path:
     """Write ``out_dir/index.html`` (self-contained) and ``out_dir/summary.json``;
     ``guidance`` (``drl_eg_settings.guidance_settings``) is printed beside the claims;
-    ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5."""
+    ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5;
+    ``random_start_rows``: the random-start study's rows, for the threats box."""
+    from replicate.random_start import start_threat  # a figure module of its own
     runs = outcome.runs
     bands, finals = summarise(runs) if runs else ([], [])
     demo_lines = demo_returns(runs)
@@ -377,7 +389,9 @@ def write_figure3_report(
         "reach_fraction": REACH_FRACTION,
         "guidance": guidance or [],
         "seed_counts": seed_counts(runs),
-        "threats": threats_to_validity(runs, published),
+        "threats": threats_to_validity(
+            runs, published, sac_start=start_threat(profile.name, random_start_rows or [])
+        ),
         "sac_standing": sac_standing(published),
         "family_titles": FAMILY_TITLES,
     }

@@ -101,6 +101,55 @@ def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
     return rows
 
 
+def stored_rows(profile: str, store: Path) -> list[dict[str, Any]]:
+    """The study's rows (``comparison_rows``) from the runs in ``store``; empty while none of
+    its random-start runs is there."""
+    from replicate.grids import stored_outcome
+
+    outcome = stored_outcome(random_start_grid(profile), [], profile, store, command(profile))
+    if outcome is None or not any(_start(r) for r in outcome.runs):
+        return []
+    return comparison_rows(outcome.runs)
+
+
+def start_threat(profile: str, rows: list[dict[str, Any]]) -> str | None:
+    """The threats-to-validity line on how our SAC starts, with the study's measured effect
+    on each env where it has pairs (None for a profile without the study's envs)."""
+    envs = [e for e in study_envs(profile) if e in STUDY_ENVS]
+    if not envs:
+        return None
+    starts = " and ".join(sorted({f"{START_STEPS[e]:,}" for e in envs}))
+    line = (
+        "How our SAC starts: with its initial policy, where the SAC authors' code takes "
+        f"{starts} uniform-random actions first on {' and '.join(envs)}"
+    )
+    measured = {row["env_id"]: row for row in rows if row.get("final")}
+    if not measured:
+        return f"{line}; not measured in these runs yet ({command(profile)} measures it)."
+    parts = []
+    for env_id in envs:
+        final = measured.get(env_id, {}).get("final")
+        if final is None:
+            parts.append(f"{env_id} not measured yet")
+            continue
+        shown = (
+            "higher"
+            if final["low"] > 0
+            else "lower"
+            if final["high"] < 0
+            else "no difference shown"
+        )
+        parts.append(
+            f"{env_id} {final['value']:+.0f} [{final['low']:.0f}, {final['high']:.0f}] "
+            f"over {final['n']} pairs ({shown})"
+        )
+    steps = next(iter(measured.values()))["steps"]
+    return (
+        f"{line}. The random start's effect on the final return at {steps:,} steps, paired by "
+        f"seed (random minus default start): {'; '.join(parts)}."
+    )
+
+
 def curves_png(runs: list[Run], title: str) -> bytes:
     from matplotlib.lines import Line2D
 

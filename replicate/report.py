@@ -325,11 +325,12 @@ def threats_to_validity(
     published: list[dict[str, Any]],
     paper_seeds: int | None = PAPER_SEEDS_FIG3,
     guidance: bool = True,
+    sac_start: str | None = None,
 ) -> list[str]:
     """What a reviewer must weigh before reading a MuJoCo verdict, from the runs: budget and
     seeds against the paper's, how much DRL-EG's guider acted, how far the demonstrations
-    fall short of the experts' targets, and our SAC against published SAC at the same steps.
-    Empty without MuJoCo runs."""
+    fall short of the experts' targets, our SAC against published SAC at the same steps, and
+    ``sac_start`` (a line on how our SAC starts) when given. Empty without MuJoCo runs."""
     from replicate.table1 import EXPERT_TARGETS
 
     mujoco = [r for r in runs if r.spec["env_id"] in MUJOCO_ENVS]
@@ -391,4 +392,6 @@ def threats_to_validity(
             + ". Published runs used -v1 to -v3 envs and their own settings "
             "(the Fig. 3 report's 'Our SAC against published SAC' lists them)."
         )
+    if sac_start:
+        threats.append(sac_start)
     return threats

@@ -133,3 +133,24 @@ def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
     assert row["env_id"] == MOUNTAINCAR and row["random_start_steps"] == [400]
     assert row["final"]["method"] == "95% paired t-interval, 3 pairs"
     assert len(summary["run_ids"]) == 6 and (out / "index.html").is_file()
+
+
+def _row(env_id: str, value: float, low: float, high: float) -> dict:
+    final = {"value": value, "low": low, "high": high, "n": 3}
+    return {"env_id": env_id, "steps": 200_000, "final": final}
+
+
+def test_the_threats_line_says_what_the_study_measured():
+    from replicate.random_start import command, start_threat
+
+    unmeasured = start_threat("reduced", [])
+    assert "initial policy" in unmeasured and command("reduced") in unmeasured
+    partial = start_threat("reduced", [_row("HalfCheetah-v5", 812.3, -100.2, 1700.9)])
+    assert "HalfCheetah-v5 +812 [-100, 1701] over 3 pairs (no difference shown)" in partial
+    assert "Ant-v5 not measured yet" in partial
+    both = start_threat(
+        "reduced",
+        [_row("HalfCheetah-v5", 900.0, 100.0, 1700.0), _row("Ant-v5", -300.0, -500.0, -100.0)],
+    )
+    assert "(higher)" in both and "Ant-v5 -300 [-500, -100] over 3 pairs (lower)" in both
+    assert start_threat("quick", []) is None  # no MuJoCo env of the study at that profile
