@@ -317,6 +317,7 @@ def write_figure3_report(
     ``fig4_runs``: the profile's Fig. 4 runs in the store, which judge claim 5;
     ``random_start_rows``: the random-start study's rows, for the threats box."""
     from replicate.random_start import start_threat  # a figure module of its own
+
     runs = outcome.runs
     bands, finals = summarise(runs) if runs else ([], [])
     demo_lines = demo_returns(runs)
