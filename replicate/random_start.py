@@ -118,35 +118,43 @@ def start_threat(profile: str, rows: list[dict[str, Any]]) -> str | None:
     envs = [e for e in study_envs(profile) if e in STUDY_ENVS]
     if not envs:
         return None
-    starts = " and ".join(sorted({f"{START_STEPS[e]:,}" for e in envs}))
     line = (
-        "How our SAC starts: with its initial policy, where the SAC authors' code takes "
-        f"{starts} uniform-random actions first on {' and '.join(envs)}"
+        "How our SAC starts: from its initial policy, where the SAC authors' code first takes "
+        "uniform-random actions (1,000 steps on Hopper and Walker2d, 10,000 on HalfCheetah "
+        "and Ant)"
     )
     measured = {row["env_id"]: row for row in rows if row.get("final")}
     if not measured:
-        return f"{line}; not measured in these runs yet ({command(profile)} measures it)."
+        return (
+            f"{line}; its effect is not measured yet ({command(profile)} measures it on "
+            f"{' and '.join(envs)})."
+        )
     parts = []
     for env_id in envs:
-        final = measured.get(env_id, {}).get("final")
-        if final is None:
+        row = measured.get(env_id)
+        if row is None:
             parts.append(f"{env_id} not measured yet")
             continue
+        final, at = row["final"], f"at {row['steps']:,} steps"
+        if final["n"] < 2:
+            parts.append(f"{env_id} {at}: {final['value']:+.0f} from 1 pair (no interval)")
+            continue
         shown = (
-            "higher"
+            "random start higher"
             if final["low"] > 0
-            else "lower"
+            else "random start lower"
             if final["high"] < 0
-            else "no difference shown"
+            else "the interval includes 0"
         )
         parts.append(
-            f"{env_id} {final['value']:+.0f} [{final['low']:.0f}, {final['high']:.0f}] "
-            f"over {final['n']} pairs ({shown})"
+            f"{env_id} {at}: {final['value']:+.0f} [{final['low']:.0f}, {final['high']:.0f}], "
+            f"{final['method']}, {shown}"
         )
-    steps = next(iter(measured.values()))["steps"]
+    starts = " and ".join(sorted({f"{START_STEPS[e]:,}" for e in envs}))
     return (
-        f"{line}. The random start's effect on the final return at {steps:,} steps, paired by "
-        f"seed (random minus default start): {'; '.join(parts)}."
+        f"{line}. Measured with {starts} random steps, the final return with the random start "
+        f"minus with the default start, paired by seed (each env on its own): "
+        f"{'; '.join(parts)}."
     )
 
 

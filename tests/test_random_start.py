@@ -98,11 +98,14 @@ def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
     }
 
 
-def test_envs_limits_what_the_study_trains(capsys):
+def test_envs_limits_what_the_study_trains(capsys, tmp_path):
     from replicate.cli import main
 
-    args = ["random-start", "--profile", "reduced", "--workers", "1", "--dry-run"]
-    assert main([*args, "--envs", "HalfCheetah-v5"]) == 0
+    args = ["random-start", "--profile", "reduced", "--store", str(tmp_path), "--dry-run"]
+    assert main([*args, "--workers", "1"]) == 0
+    everything = capsys.readouterr().out
+    assert "HalfCheetah-v5" in everything and "Ant-v5" in everything
+    assert main([*args, "--workers", "1", "--envs", "HalfCheetah-v5"]) == 0
     planned = capsys.readouterr().out
     assert "HalfCheetah-v5" in planned and "Ant-v5" not in planned
 
@@ -133,10 +136,15 @@ def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
     assert row["env_id"] == MOUNTAINCAR and row["random_start_steps"] == [400]
     assert row["final"]["method"] == "95% paired t-interval, 3 pairs"
     assert len(summary["run_ids"]) == 6 and (out / "index.html").is_file()
+    from replicate.random_start import stored_rows
+
+    (stored,) = stored_rows("smoke", store)  # what the Fig. 3 threats line reads
+    assert stored["runs"] == row["runs"] and stored["final"]["value"] == row["final"]["value"]
 
 
-def _row(env_id: str, value: float, low: float, high: float) -> dict:
-    final = {"value": value, "low": low, "high": high, "n": 3}
+def _row(env_id: str, value: float, low: float, high: float, n: int = 3) -> dict:
+    method = f"95% paired t-interval, {n} pairs"
+    final = {"value": value, "low": low, "high": high, "n": n, "method": method}
     return {"env_id": env_id, "steps": 200_000, "final": final}
 
 
@@ -146,11 +154,27 @@ def test_the_threats_line_says_what_the_study_measured():
     unmeasured = start_threat("reduced", [])
     assert "initial policy" in unmeasured and command("reduced") in unmeasured
     partial = start_threat("reduced", [_row("HalfCheetah-v5", 812.3, -100.2, 1700.9)])
-    assert "HalfCheetah-v5 +812 [-100, 1701] over 3 pairs (no difference shown)" in partial
+    assert (
+        "HalfCheetah-v5 at 200,000 steps: +812 [-100, 1701], 95% paired t-interval, 3 pairs, "
+        "the interval includes 0" in partial
+    )
     assert "Ant-v5 not measured yet" in partial
     both = start_threat(
         "reduced",
         [_row("HalfCheetah-v5", 900.0, 100.0, 1700.0), _row("Ant-v5", -300.0, -500.0, -100.0)],
     )
-    assert "(higher)" in both and "Ant-v5 -300 [-500, -100] over 3 pairs (lower)" in both
+    assert "random start higher" in both and "[-500, -100]" in both
+    assert both.endswith("random start lower.")
+    one = start_threat("reduced", [_row("Ant-v5", 512.0, float("nan"), float("nan"), n=1)])
+    assert "+512 from 1 pair (no interval)" in one and "nan" not in one
     assert start_threat("quick", []) is None  # no MuJoCo env of the study at that profile
+
+
+def test_the_fig3_threats_end_with_the_start_line():
+    from replicate.report import threats_to_validity
+    from replicate.store import load_run
+
+    ant = next(p for p in sorted((ROOT / "runs").glob("sac__Ant-v5__*")) if p.is_dir())
+    threats = threats_to_validity([load_run(ant)], [], sac_start="how SAC starts")
+    assert threats[-1] == "how SAC starts"
+    assert "how SAC starts" not in threats_to_validity([load_run(ant)], [])
