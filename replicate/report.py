@@ -22,6 +22,7 @@ from replicate.stats import (
     t_mean,
 )
 from replicate.store import Run
+from replicate.templating import report_environment, step_share
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
 
@@ -220,8 +221,6 @@ def write_report(
 ) -> Path:
     """A report: ``template`` rendered with ``context`` as ``out_dir/index.html`` and
     ``summary`` beside it as summary.json, each replaced atomically; the page's path."""
-    from replicate.templating import report_environment
-
     out_dir = Path(out_dir)
     html = report_environment().get_template(template).render(**context)
     _atomic_write(out_dir / "index.html", html.encode())
@@ -358,12 +357,8 @@ def threats_to_validity(
         if run.spec["algo"] == "drl-eg":
             shares[run.spec["env_id"]].append(run.guided_share)
     if shares:
-
-        def share(x: float) -> str:
-            return f"{x:.1%}" if x >= 0.001 or x == 0 else "<0.1%"
-
         per_env = "; ".join(
-            f"{env_id} " + "-".join(dict.fromkeys((share(min(v)), share(max(v)))))
+            f"{env_id} " + "-".join(dict.fromkeys((step_share(min(v)), step_share(max(v)))))
             for env_id, v in sorted(shares.items())
         )
         threats.append(

@@ -1,4 +1,4 @@
-from replicate.templating import count_seeds, report_environment
+from replicate.templating import count_seeds, report_environment, share_summary, step_share
 
 
 def test_seed_counts_are_singular_for_one():
@@ -16,3 +16,11 @@ def test_report_templates_share_the_seeds_filter():
     )
     for name in ("fig3.html", "fig4.html", "ablation.html", "rlfd.html", "table1.html"):
         environment.get_template(name)  # parses, so every filter it names is registered
+
+
+def test_a_rare_guider_never_reads_as_one_that_never_acted():
+    assert step_share(0.0) == "0.0%" and step_share(0.0003) == "<0.1%"
+    assert step_share(0.14) == "14.0%"
+    assert share_summary([0.116, 0.14, 0.166]) == "14.1% (11.6% to 16.6%)"
+    assert share_summary([0.0003, 0.0004]) == "<0.1% in every run"
+    assert share_summary([0.0, 0.0]) == "0.0% in every run"
