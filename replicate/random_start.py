@@ -101,15 +101,24 @@ def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
     return rows
 
 
+def stored_study(profile: str, store: Path, seeds: int | None = None) -> GridOutcome | None:
+    """The study's runs in ``store``; None while none of its random-start runs is there (the
+    default start's runs alone are Fig. 3's)."""
+    from replicate.grids import stored_outcome
+
+    outcome = stored_outcome(
+        random_start_grid(profile, seeds), [], profile, store, command(profile)
+    )
+    if outcome is None or not any(_start(r) for r in outcome.runs):
+        return None
+    return outcome
+
+
 def stored_rows(profile: str, store: Path) -> list[dict[str, Any]]:
     """The study's rows (``comparison_rows``) from the runs in ``store``; empty while none of
     its random-start runs is there."""
-    from replicate.grids import stored_outcome
-
-    outcome = stored_outcome(random_start_grid(profile), [], profile, store, command(profile))
-    if outcome is None or not any(_start(r) for r in outcome.runs):
-        return []
-    return comparison_rows(outcome.runs)
+    outcome = stored_study(profile, store)
+    return comparison_rows(outcome.runs) if outcome else []
 
 
 def start_threat(profile: str, rows: list[dict[str, Any]]) -> str | None:
@@ -224,14 +233,8 @@ def run_random_start(
 
 
 def rebuild(profile: str, store: Path, out_dir: Path, seeds: int | None) -> Path | None:
-    from replicate.grids import stored_outcome
-
-    outcome = stored_outcome(
-        random_start_grid(profile, seeds), [], profile, store, command(profile)
-    )
-    if outcome is None or not any(_start(r) for r in outcome.runs):
-        return None  # nothing of its own yet: Fig. 3 shows the default start
-    return write_random_start_report(outcome, profile, out_dir)
+    outcome = stored_study(profile, store, seeds)
+    return None if outcome is None else write_random_start_report(outcome, profile, out_dir)
 
 
 def describe(summary: dict[str, Any]) -> dict[str, str]:
