@@ -96,6 +96,7 @@ def comparison_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "final": paired(lambda r: r.final_return, "final return") if shared else None,
                 "area": paired(_area, "area under the curve") if shared else None,
                 "runs": sorted(r.path.name for r in here),
+                "random_start_runs": sorted(r.path.name for r in random.values()),
             }
         )
     return rows

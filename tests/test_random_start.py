@@ -137,6 +137,11 @@ def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
     assert row["env_id"] == MOUNTAINCAR and row["random_start_steps"] == [400]
     assert row["final"]["method"] == "95% paired t-interval, 3 pairs"
     assert len(summary["run_ids"]) == 6 and (out / "index.html").is_file()
+    recorded = {  # the runs listed as the random start's are those that record one
+        run: "random_start_steps" in (store / run / "spec.json").read_text() for run in row["runs"]
+    }
+    assert sorted(r for r, has in recorded.items() if has) == row["random_start_runs"]
+    assert len(row["random_start_runs"]) == 3
     from replicate.random_start import stored_rows
 
     (stored,) = stored_rows("smoke", store)  # what the Fig. 3 threats line reads
