@@ -2,16 +2,13 @@
 against a threshold or a band, through a t-interval: paired on per-seed differences where
 the two algorithms share initial weights seed by seed (SAC and DRL-EG), Welch's otherwise.
 
-A check *holds* when its one-sided test of the claimed side rejects at 2.5% (for a primary
-check: its 95% interval lies wholly on the claimed side), *fails* when the test of the
-other side does, is *equivalent* when two one-sided tests put a claimed difference within
-the smallest effect of interest (a difference too small to matter, not "better" or
+A check *holds* when the one-sided test of the claimed side rejects, *fails* when the test
+of the other side does, is *equivalent* when two one-sided tests put a claimed difference
+within the smallest effect of interest (a difference too small to matter, not "better" or
 "worse"), is *not testable at this budget* when a precondition was never observed, and is
-*inconclusive* otherwise. Secondary checks decide on Holm-adjusted p-values (one family per
-claim), so a claim with many checks is not failed by chance; their 95% intervals are shown
-unadjusted, so one can clear its threshold and still be inconclusive. A claim judged on two
-envs is not reproduced when either env's primary check fails or is equivalent after Holm's
-adjustment over the two (the route to "reproduced" needs no adjustment: both must hold).
+*inconclusive* otherwise. Every test is Holm-adjusted over the claim's testable checks, one
+adjustment per outcome (holds, fails, equivalent), each at 2.5% one-sided; the 95%
+intervals are shown unadjusted, so one can clear its threshold and still be inconclusive.
 """
 
 from __future__ import annotations
@@ -22,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from replicate.measures import instabilities as measured_instabilities
 from replicate.stats import CONFIDENCE, MeanEstimate, curve_area, holm, seed_matched_difference
 
 ALPHA_ONE_SIDED = (1 - CONFIDENCE) / 2  # a one-sided test per side of a 95% interval
@@ -45,7 +43,7 @@ class Group:
     env_id: str
     algo: str
     seeds: list[int]
-    finals: np.ndarray  # (runs,) return at the last evaluation point
+    finals: np.ndarray  # (runs,) final return: the late-training mean (replicate.measures)
     curves: np.ndarray  # (runs, points) over the evaluation steps all runs share
     steps: np.ndarray | None = None  # (points,) those steps; None: evenly spaced
     # env steps per second of one training process, by device kind ("cpu", "gpu"), median
@@ -61,14 +59,6 @@ class Group:
     @property
     def budget(self) -> int | None:
         return int(self.steps[-1]) if self.steps is not None else None
-
-
-def instability(curve: np.ndarray) -> float:
-    """Sum of the drops between consecutive evaluations, over the curve's range: 0 for a
-    curve that never falls, about 1 for one that gives back everything it gained once."""
-    drops = np.clip(-np.diff(curve), 0.0, None).sum()
-    spread = np.ptp(curve)
-    return float(drops / spread) if spread > 0 else 0.0
 
 
 def difference(
@@ -99,7 +89,9 @@ def areas(group: Group) -> np.ndarray:
 
 
 def instabilities(group: Group) -> np.ndarray:
-    return np.array([instability(c) for c in group.curves])
+    """Per run, the instability of its curve after the first 10% of the budget."""
+    steps = group.steps if group.steps is not None else np.arange(group.curves.shape[1])
+    return measured_instabilities(steps, group.curves)
 
 
 @dataclass
@@ -112,7 +104,8 @@ class Check:
     above: float | None = None
     within: tuple[float, float] | None = None
     smallest_effect: float | None = None  # for ``above`` on a difference
-    primary: bool = False
+    part: str | None = None  # the claim's part it tests
+    counted: bool = False  # decided by counting seeds, not by a test
     seeds_meeting: int | None = None
     not_testable: str | None = None  # why the check cannot be decided at this budget
     groups: tuple[Group, ...] = ()  # whose runs more seeds would add to
@@ -120,6 +113,14 @@ class Check:
     adjusted: dict[str, float] = field(default_factory=dict)
     unadjusted: dict[str, float] = field(default_factory=dict)
     decide: str | None = None
+    decide_short: str | None = None
+    likely: str | None = None  # the state more seeds would most likely give, if open
+
+    @property
+    def contradicts(self) -> bool:
+        """Its state contradicts the claim: it fails, or a claimed difference is found
+        negligible (equivalent within the smallest effect of interest)."""
+        return self.state == FAILS or (self.state == EQUIVALENT and self.within is None)
 
     def p_values(self) -> dict[str, float]:
         """One-sided p-values of 'it holds', 'it fails' and, with a smallest effect,
@@ -172,7 +173,7 @@ class Check:
         est = self.estimate
         return {
             "what": self.what,
-            "role": "primary" if self.primary else "secondary",
+            "part": self.part,
             "estimate": est.value,
             "low": est.low,
             "high": est.high,
@@ -188,33 +189,32 @@ class Check:
             "n": est.n,
             "not_testable": self.not_testable,
             "decide": self.decide,
+            "decide_short": self.decide_short,
+            "likely": self.likely,
+            "contradicts": self.contradicts,
         }
 
 
-def decide(checks: list[Check]) -> None:
-    """Set every check's state. Secondary checks decide on Holm-adjusted p-values, one
-    family per outcome over the claim's secondary checks. Primary checks decide "holds" on
-    their own p-values (all must hold: an intersection-union test) and "fails" or
-    "equivalent" on p-values Holm-adjusted over the claim's primary checks (either one
-    would make the claim not reproduced)."""
-    testable = [c for c in checks if not c.not_testable]
-    for role in (False, True):
-        members = [c for c in testable if c.primary == role]
-        raw = [c.p_values() for c in members]
-        adjusted_outcomes = (FAILS, EQUIVALENT) if role else (HOLDS, FAILS, EQUIVALENT)
-        families = {o: holm([p.get(o, np.nan) for p in raw]) for o in adjusted_outcomes}
-        for k, check in enumerate(members):
-            p = {o: (families[o][k] if o in families else v) for o, v in raw[k].items()}
-            check.unadjusted = {o: float(v) for o, v in raw[k].items()}
-            check.adjusted = {o: float(v) for o, v in p.items()}
-            check.state = next(
-                (
-                    o
-                    for o in (EQUIVALENT, HOLDS, FAILS)
-                    if np.isfinite(p.get(o, np.nan)) and p[o] < ALPHA_ONE_SIDED
-                ),
-                INCONCLUSIVE,
-            )
+def decide(checks: list[Check], alpha: float = ALPHA_ONE_SIDED) -> None:
+    """Set every check's state: each outcome's one-sided p-values Holm-adjusted over the
+    testable checks (one family per outcome, every check in it), each decided at ``alpha``."""
+    testable = [c for c in checks if not c.not_testable and not c.counted]
+    raw = [c.p_values() for c in testable]
+    families = {o: holm([p.get(o, np.nan) for p in raw]) for o in (HOLDS, FAILS, EQUIVALENT)}
+    for k, check in enumerate(testable):
+        check.unadjusted = {o: float(v) for o, v in raw[k].items()}
+        check.adjusted = {o: float(families[o][k]) for o in raw[k]}
+        check.state = next(
+            (
+                o
+                for o in (EQUIVALENT, HOLDS, FAILS)
+                if np.isfinite(check.adjusted.get(o, np.nan)) and check.adjusted[o] < alpha
+            ),
+            INCONCLUSIVE,
+        )
     for check in checks:
         if check.not_testable:
             check.state, check.adjusted, check.unadjusted = NOT_TESTABLE, {}, {}
+        elif check.counted:
+            met, of = check.seeds_meeting or 0, check.estimate.n
+            check.state = HOLDS if met == of else FAILS if met == 0 else INCONCLUSIVE

@@ -19,7 +19,9 @@ from replicate.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.errors import HarnessError
 from replicate.experiments import GridOptions
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
+from replicate.forest import forest_images
 from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
+from replicate.measures import final_returns
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile, get_profile
 from replicate.published import FAMILY_TITLES, published_points
 from replicate.report import (
@@ -203,7 +205,7 @@ def summarise(runs: list[Run]) -> tuple[list[CurveBand], list[FinalReturns]]:
                 [r.spec["seed"] for r in members],
             )
         )
-        last = matrix[:, -1]
+        last = final_returns(steps, matrix)  # the declared late-training mean
         est = t_mean(last)
         finals.append(
             FinalReturns(
@@ -373,6 +375,8 @@ def write_figure3_report(
         "figure_png_b64": figure,
         "finals": finals,
         "claims": claims,
+        "forests": forest_images(claims),
+        "declaration": claims[0]["declaration"] if claims else None,
         "aggregate": aggregate,
         "budgets": budgets,
         "runs": sorted(runs, key=lambda r: (r.spec["env_id"], r.spec["algo"], r.spec["seed"])),

@@ -170,6 +170,7 @@ def write_figure4_report(
     paired differences, and claim 5 when the env is the paper's (Ant)."""
     from replicate.claims import ANT, PAPER_FIG4_SEEDS
     from replicate.figures import paired_curves_png
+    from replicate.forest import forest_images
 
     by_seed: dict[int, dict[str, Run]] = defaultdict(dict)
     for run in outcome.runs:
@@ -192,7 +193,7 @@ def write_figure4_report(
         )
     claim = None
     if env_id == ANT and pairs:  # the same verdict as the Fig. 3 report's ledger
-        claim = ledger([], outcome.runs, profile)[4]
+        claim = next(c for c in ledger([], outcome.runs, profile) if c["runs"] == "fig4")
     paired = claim.get("paired") if claim else None
     if paired is None and rows:  # another env, or a profile that does not judge claim 5
         paired = paired_mean_difference(
@@ -222,6 +223,8 @@ def write_figure4_report(
         "rows": rows,
         "paired": paired,
         "claim": claim,
+        "forests": forest_images([claim] if claim else []),
+        "declaration": claim["declaration"] if claim else None,
         "confidence": CONFIDENCE,
         "failed": outcome.failed,
         "missing": outcome.skipped,

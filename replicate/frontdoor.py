@@ -133,8 +133,15 @@ def verdict_table(entries: list[ReportEntry]) -> tuple[list[str], list[dict[str,
                 "href": f"{report.path}/index.html#claim-{claim_id}",
                 "budget": _steps(claim["steps"]) if claim.get("steps") else "",
                 "seeds": seed_words(seeds or []),
-                "decides": claim.get("decides", []),
-                "not_met": claim.get("not_met", []),
+                "parts": [
+                    {"id": p["id"], "state": p["state"]}
+                    for p in claim.get("parts", [])
+                    if p.get("state")
+                ],
+                "likely": claim.get("likely"),
+                "preconditions": [
+                    p["detail"] for p in claim.get("preconditions", []) if not p["observed"]
+                ],
             }
         rows.append(row)
     return profiles, rows

@@ -11,9 +11,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+import pandas as pd
 
 from replicate.checks import Group
 from replicate.figure_registry import seed_words
+from replicate.measures import final_returns, last_returns
 from replicate.profiles import PAPER_SEEDS_FIG3, Profile
 from replicate.published import published_points
 from replicate.stats import (
@@ -36,12 +38,11 @@ def group_runs(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
     return dict(groups)
 
 
-def curve_matrix(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, returns[runs, steps]) over the evaluation steps that every run shares."""
+def curve_matrix(runs: list[Run], column: str = "return_mean") -> tuple[np.ndarray, np.ndarray]:
+    """(steps, returns[runs, steps]) over the evaluation steps that every run shares;
+    ``column``: the evaluations' mean return, or ``train_return`` (training episodes)."""
     common = sorted(set.intersection(*(set(r.curve["step"]) for r in runs)))
-    matrix = np.stack(
-        [r.curve.set_index("step").loc[common, "return_mean"].to_numpy(float) for r in runs]
-    )
+    matrix = np.stack([r.curve.set_index("step").loc[common, column].to_numpy(float) for r in runs])
     return np.asarray(common), matrix
 
 
@@ -55,16 +56,31 @@ def training_rates(members: list[Run]) -> dict[str, float]:
     return {kind: float(np.median(rates)) for kind, rates in by_kind.items()}
 
 
-def claim_groups(runs: list[Run]) -> dict[tuple[str, str], Group]:
-    """The runs of each (env, algorithm) as the claims ledger reads them."""
+READINGS = ("evaluations", "last evaluation", "training episodes")
+
+
+def claim_groups(runs: list[Run], reading: str = "evaluations") -> dict[tuple[str, str], Group]:
+    """The runs of each (env, algorithm) as the claims ledger reads them: the declared
+    measures over the evaluation curves; or, for the robustness line, the final return as
+    the single last evaluation, or every measure over the training episodes' returns
+    (cells whose runs record none are left out)."""
     groups = {}
     for (env_id, algo), members in group_runs(runs).items():
-        steps, matrix = curve_matrix(members)
+        column = "train_return" if reading == "training episodes" else "return_mean"
+        steps, matrix = curve_matrix(members, column)
+        if reading == "training episodes":
+            # the first point precedes any training episode; between episode ends the last
+            # finished episode's return stands; a cell with a run that records none is left out
+            steps, matrix = steps[1:], matrix[:, 1:]
+            if not len(steps) or not np.isfinite(matrix).any(axis=1).all():
+                continue
+            matrix = pd.DataFrame(matrix.T).ffill().bfill().to_numpy().T
+        finals = last_returns(steps, matrix) if reading == "last evaluation" else None
         groups[(env_id, algo)] = Group(
             env_id,
             algo,
             [r.spec["seed"] for r in members],
-            matrix[:, -1],
+            final_returns(steps, matrix) if finals is None else finals,
             matrix,
             steps,
             training_rates(members),
@@ -257,32 +273,91 @@ def judging_profile(claim_envs: tuple[str, ...]) -> str | None:
     )
 
 
+def _declaration_record(runs: list[Run]) -> dict[str, Any]:
+    """The declaration a ledger judged with: its file, version, and how many of the
+    ledger's runs were trained before that version."""
+    from replicate.declaration import declaration_version, trained_before
+    from replicate.measures import DEFAULT_DECLARATION
+
+    version = declaration_version(DEFAULT_DECLARATION)
+    started = [r.provenance.get("started_utc") for r in runs]
+    return {
+        "file": f"replicate/declarations/{DEFAULT_DECLARATION.name}",
+        "commit": version.commit,
+        "date": version.date,
+        "version": version.short,
+        "runs": len(runs),
+        "trained_before": trained_before(started, version) if version.commit else len(runs),
+    }
+
+
+def _robustness(
+    runs: list[Run], fig4_runs: list[Run], profile: Profile, claims: list[dict[str, Any]]
+) -> None:
+    """Each judged claim's verdict under the single last evaluation and under the training
+    episodes' returns, beside the declared reading (``claim["robustness"]``)."""
+    from replicate.claims import judge_claims, label
+    from replicate.declaration import load_declaration
+
+    specs = {c.id: c for c in load_declaration().claims}
+    judged = [c for c in claims if not c["verdict"].startswith("not judged")]
+    for reading in READINGS[1:]:
+        groups = claim_groups(runs, reading)
+        fig4 = claim_groups(fig4_runs, reading) if fig4_runs else None
+        by_id = {c["id"]: c for c in judge_claims(groups, True, set(profile.steps), fig4)}
+        for claim in judged:
+            these = (fig4 or {}) if claim["runs"] == "fig4" else groups
+            read = {
+                (check.env, algo)
+                for check in specs[claim["id"]].checks
+                for algo in (check.algo, check.other)
+                if algo
+            }
+            left_out = sorted(f"{label(a)} on {e}" for e, a in read if (e, a) not in these)
+            verdict = by_id[claim["id"]]["verdict"]
+            if left_out:
+                named = ", ".join(left_out[:3]) + (", ..." if len(left_out) > 3 else "")
+                verdict = (
+                    f"not available: the runs of {len(left_out)} of the {len(read)} cells it "
+                    f"reads record no training-episode returns ({named})"
+                )
+            claim.setdefault("robustness", {})[reading] = verdict
+
+
 def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict[str, Any]]:
-    """The profile's one verdict per claim: claims 1-4 from the Fig. 3 runs, claim 5 from
-    Fig. 4's paired runs; a claim on envs outside the profile's budget names the report
-    that judges it (``where``: a link within reports/)."""
-    from replicate.claims import CLAIM_ENVS, judge_claims
+    """The profile's one verdict per claim, judged with the declaration: those on Fig. 3's
+    runs from ``runs``, those on Fig. 4's paired runs from ``fig4_runs``; a claim on envs
+    outside the profile's budget names the report that judges it (``where``: a link within
+    reports/)."""
+    from replicate.claims import claim_envs, judge_claims
+    from replicate.declaration import load_declaration
     from replicate.profiles import report_dir
 
-    fig3_runs_absent = not runs  # the Fig. 4 report asks for claim 5 alone
+    declaration = load_declaration()
+    envs_of = claim_envs(declaration)
+    fig3_runs_absent = not runs  # the Fig. 4 report asks for its claims alone
     claims = judge_claims(
         claim_groups(runs),
-        demo_returns(runs + fig4_runs),
         profile.meaningful,
         judged_envs=set(profile.steps),
         fig4_groups=claim_groups(fig4_runs) if fig4_runs else None,
+        declaration=declaration,
     )
-    for claim in claims:
+    record = _declaration_record(runs + fig4_runs)
+    for claim, spec in zip(claims, declaration.claims):
+        claim["runs"] = spec.runs
+        claim["declaration"] = record
         claim["where"] = None
         if claim["verdict"].startswith("not judged at this profile"):
-            other = judging_profile(CLAIM_ENVS[claim["id"]])
+            other = judging_profile(envs_of[claim["id"]])
             if other:
-                name = "fig4" if claim["id"] == 5 else "fig3"
                 # reports link each other within the standard layout of reports/
                 here = report_dir(profile.name, "fig4" if fig3_runs_absent else "fig3")
-                target = Path(os.path.relpath(report_dir(other, name) / "index.html", here))
+                target = Path(os.path.relpath(report_dir(other, spec.runs) / "index.html", here))
                 claim["verdict"] += f": see the {other} profile's report"
                 claim["where"] = f"{target.as_posix()}#claim-{claim['id']}"
+    if profile.meaningful:
+        _robustness(runs, fig4_runs, profile, claims)
     return claims
 
 

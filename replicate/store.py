@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from replicate.errors import HarnessError
+from replicate.measures import final_returns
 
 CURVE_COLUMNS = [
     "step",
@@ -36,6 +37,14 @@ class Run:
 
     @property
     def final_return(self) -> float:
+        """The mean of its evaluations over the last 10% of its budget, and at least its
+        last 3 (the declared measure: ``replicate.measures``)."""
+        steps = self.curve["step"].to_numpy(float)
+        return float(final_returns(steps, self.curve["return_mean"].to_numpy(float))[0])
+
+    @property
+    def last_return(self) -> float:
+        """Its single last evaluation."""
         return float(self.curve["return_mean"].iloc[-1])
 
     @property

@@ -1,29 +1,54 @@
-"""A claim's verdict from its checks (``replicate.checks``): its primary check's, reproduced,
-not reproduced, inconclusive or not testable at this budget; "partly reproduced" when the
-primary holds and a secondary check fails. For each inconclusive check, what would decide
-it: how many seeds, and what they would cost at the rates of the store's runs.
+"""From checks to parts to a claim's verdict, and what would decide an open check.
+
+A part holds when all its checks hold, is contradicted when any of its checks contradicts
+it (fails, or finds a claimed difference negligible), and is open otherwise. The claim is
+*reproduced* when every part holds, *not reproduced* when a part is contradicted and none
+holds, *partly reproduced* when at least one part holds and at least one is contradicted,
+*inconclusive* when no part is contradicted and not all hold, and *not testable at this
+budget* when one of its preconditions was never observed.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Iterable
+from dataclasses import replace
 
-from replicate.checks import (
-    EQUIVALENT,
-    FAILS,
-    HOLDS,
-    INCONCLUSIVE,
-    LABELS,
-    NOT_TESTABLE,
-    Check,
-    Group,
-    decide,
-)
-from replicate.stats import CONFIDENCE, DECIDING_CHANCE, seeds_to_decide
-from replicate.templating import count_seeds
+import numpy as np
+from scipy import stats
+
+from replicate.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE, Check
+from replicate.stats import DECIDING_CHANCE, MeanEstimate, seeds_to_decide
 
 REPRODUCED, PARTLY, NOT_REPRODUCED = "reproduced", "partly reproduced", "not reproduced"
+INCONCLUSIVE_CLAIM, NOT_TESTABLE_CLAIM = "inconclusive", "not testable at this budget"
+CONTRADICTED, OPEN = "contradicted", "open"
 MOST_SEEDS = 200  # beyond this, "what would decide it" stops counting
+SIGMA_CONFIDENCE = 0.80  # the range of seeds: sigma's two-sided 80% confidence limits
+
+
+def part_state(states: Iterable[tuple[str, bool]]) -> str:
+    """A part's state from its checks' (state, contradicts) pairs."""
+    states = list(states)
+    if any(contradicts for _, contradicts in states):
+        return CONTRADICTED
+    if states and all(state == HOLDS for state, _ in states):
+        return HOLDS
+    return OPEN
+
+
+def claim_verdict(part_states: list[str], preconditions_met: bool = True) -> str:
+    """The claim's verdict from its parts' states."""
+    if not preconditions_met:
+        return NOT_TESTABLE_CLAIM
+    holds = part_states.count(HOLDS)
+    contradicted = part_states.count(CONTRADICTED)
+    if part_states and holds == len(part_states):
+        return REPRODUCED
+    if contradicted and holds:
+        return PARTLY
+    if contradicted:
+        return NOT_REPRODUCED
+    return INCONCLUSIVE_CLAIM
 
 
 def _hours(steps: int, rate: float, processes: int) -> str:
@@ -31,13 +56,36 @@ def _hours(steps: int, rate: float, processes: int) -> str:
     return f"{hours:.1f} h" if hours >= 1 else f"{hours * 60:.0f} min"
 
 
-def what_would_decide(check: Check, family: int, primaries: int = 1) -> tuple[str, str] | None:
-    """For an inconclusive check: how many seeds would give it an 80% chance of being
-    decided if the observed effect and spread held, and what they would cost at the rates
-    of the store's runs; in full and in short (for the front door). Each way of deciding it
-    is counted at the level it is tested at: a secondary check at the Bonferroni level of
-    its ``family`` (which Holm's adjustment never asks more than), a primary check's "fails"
-    and "equivalent" at the Bonferroni level of the claim's ``primaries``."""
+def sigma_limits(
+    estimate: MeanEstimate, confidence: float = SIGMA_CONFIDENCE
+) -> tuple[float, float]:
+    """Factors by which the true per-seed spread may differ from the observed one: the
+    two-sided ``confidence`` limits of sigma from a chi-square on the estimate's degrees of
+    freedom (Welch's for a Welch difference)."""
+    df = estimate.df
+    if not np.isfinite(df) or df <= 0:
+        return float("nan"), float("nan")
+    tail = (1 - confidence) / 2
+    return (
+        float(np.sqrt(df / stats.chi2.ppf(1 - tail, df))),
+        float(np.sqrt(df / stats.chi2.ppf(tail, df))),
+    )
+
+
+def _scaled(estimate: MeanEstimate, factor: float) -> MeanEstimate:
+    variances = estimate.variances
+    if variances is not None:
+        variances = (variances[0] * factor**2, variances[1] * factor**2)
+    return replace(estimate, se=estimate.se * factor, variances=variances)
+
+
+def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
+    """For an inconclusive check: the state more seeds would most likely give at the
+    observed effect, and how many seeds would give it an 80% chance of being decided (at the
+    Bonferroni level of its ``family``, which Holm's adjustment never asks more than), with
+    the range those seeds span over sigma's 80% confidence limits, and what the plug-in
+    count would cost at the rates of the store's runs. In full and in short. Sets
+    ``check.likely``."""
     if check.state != INCONCLUSIVE:
         return None
     est = check.estimate
@@ -50,25 +98,36 @@ def what_would_decide(check: Check, family: int, primaries: int = 1) -> tuple[st
             "no number of seeds at this budget: the estimate sits exactly at what decides "
             "the check; only a longer budget (where the effect may differ) can"
         )
-        return text, "no number of seeds at this budget; a longer budget might"
-
-    def level(outcome: str) -> float:
-        tests = family if not check.primary else (1 if outcome == HOLDS else primaries)
-        return 1 - (1 - CONFIDENCE) / max(tests, 1)
-
-    options = [
-        (n, level(outcome))
+        return text, "no number of seeds at this budget"
+    level = 1 - (1 - est.confidence) / max(family, 1)
+    options = sorted(
+        (n, outcome)
         for outcome, distances in routes
-        if (n := seeds_to_decide(est, [distances], level(outcome), limit=MOST_SEEDS))
-    ]
+        if (n := seeds_to_decide(est, [distances], level, limit=MOST_SEEDS))
+    )
+    # the state the observed effect points to: the route decided with the fewest seeds, or
+    # where none is within reach, the one whose bounds lie farthest from the estimate
+    likely = options[0][1] if options else max(routes, key=lambda r: min(r[1]))[0]
+    check.likely = likely
     if not options:
         text = (
             f"more than {MOST_SEEDS} {unit} at this budget: the estimate lies "
             f"{check.distance():.3g} from what decides the check, small against the "
-            "seeds' spread; only a longer budget (where the effect may differ) can"
+            f"seeds' spread; at the observed effect it would most likely {_verb(likely)}"
         )
-        return text, f"more than {MOST_SEEDS} {unit} at this budget; a longer budget might"
-    needed, needed_level = min(options)
+        return text, f"more than {MOST_SEEDS} {unit}, likely {likely}"
+    needed, outcome = options[0]
+    distances = dict(routes)[outcome]
+    low_factor, high_factor = sigma_limits(est)
+    span = []
+    for factor in (low_factor, high_factor):
+        n = (
+            seeds_to_decide(_scaled(est, factor), [distances], level, limit=MOST_SEEDS)
+            if np.isfinite(factor)
+            else None
+        )
+        span.append(str(n) if n else f"more than {MOST_SEEDS}")
+    span_text = f"{span[0]} to {span[1]}"
     per_group = (
         [needed - est.n] * len(check.groups)
         if est.n_other is None
@@ -76,12 +135,11 @@ def what_would_decide(check: Check, family: int, primaries: int = 1) -> tuple[st
     )
     extra_runs = sum(max(0, k) for k in per_group)
     text = (
-        f"about {needed} {unit} (the smallest n at which its {needed_level * 100:.3g}% "
-        f"{est.method} would decide it with an {DECIDING_CHANCE:.0%} chance, if the observed "
-        f"mean and spread were the truth; the estimate lies {check.distance():.3g} from "
-        "what decides it)"
+        f"most likely {_verb(outcome)} with more seeds at the observed effect: about "
+        f"{needed} {unit} ({span_text} over sigma's {SIGMA_CONFIDENCE:.0%} confidence limits) "
+        f"would decide it with an {DECIDING_CHANCE:.0%} chance at {level * 100:.3g}%"
     )
-    short = f"about {needed} {unit}"
+    short = f"~{needed} {unit} ({span_text}), likely {outcome}"
     budget = max((g.budget or 0) for g in check.groups) if check.groups else 0
     if extra_runs and budget:
         steps = extra_runs * budget
@@ -89,79 +147,15 @@ def what_would_decide(check: Check, family: int, primaries: int = 1) -> tuple[st
         for kind, machine, processes in (("cpu", "a 2-core CPU", 2), ("gpu", "a GPU machine", 1)):
             rates = [g.rates[kind] for g in check.groups if kind in g.rates]
             if rates:
-                costs.append(f"about {_hours(steps, min(rates), processes)} on {machine}")
+                costs.append(f"{_hours(steps, min(rates), processes)} on {machine}")
         runs = f"{extra_runs} more run" + ("s" if extra_runs != 1 else "")
-        cost = f"{runs}, {steps:,} env steps" + (", " + " or ".join(costs) if costs else "")
-        text += f": {cost}" + (" at the rates the store's runs recorded" if costs else "")
-        short += f": {cost}"
+        text += f"; {runs}, {steps:,} env steps" + (
+            ", about " + " or ".join(costs) if costs else ""
+        )
+        if costs:
+            short += ", " + costs[0].split(" on ")[0]
     return text, short
 
 
-def judge(
-    claim_id: int, title: str, paper: str, checks: list[Check], used: list[Group]
-) -> dict[str, Any]:
-    """The claim's verdict from its primary checks (all must hold: an intersection-union
-    test needs no correction), with the secondary checks listed."""
-    decide(checks)
-    family = sum(1 for c in checks if not c.primary and not c.not_testable)
-    primaries = sum(1 for c in checks if c.primary and not c.not_testable)
-    shorts = []
-    for check in checks:
-        full_and_short = what_would_decide(check, family, primaries)
-        check.decide = check.not_testable or (full_and_short[0] if full_and_short else None)
-        if check.primary and check.decide:
-            where_ = check.estimate.quantity.split(":")[0].split(" at ")[0]
-            shorts.append(f"{where_}: " + (check.not_testable or full_and_short[1]))
-    primary = [c for c in checks if c.primary]
-    states = {c.state for c in primary}
-    # a secondary check fails, or finds a difference the claim states equivalent to none
-    failing = [
-        c.what
-        for c in checks
-        if not c.primary and (c.state == FAILS or (c.state == EQUIVALENT and c.within is None))
-    ]
-    if NOT_TESTABLE in states:
-        verdict = NOT_TESTABLE
-    elif states == {HOLDS}:
-        verdict = PARTLY if failing else REPRODUCED
-    elif states & {FAILS, EQUIVALENT}:
-        verdict = NOT_REPRODUCED
-    else:
-        verdict = INCONCLUSIVE
-    budgets = [g.budget for g in used if g.budget]
-    seeds = [len(g.seeds) for g in used]
-    return {
-        "id": claim_id,
-        "title": title,
-        "paper": paper,
-        "verdict": verdict,
-        "steps": max(budgets) if budgets else None,
-        "seeds": [min(seeds), max(seeds)] if seeds else None,
-        "decides": shorts,
-        "primary": [c.what for c in primary],
-        "not_met": failing,
-        "parts": [c.as_dict() for c in checks],
-        "effect": primary[0].estimate.as_dict()
-        if primary and not primary[0].not_testable
-        else None,
-        "algorithms": sorted(
-            {f"{LABELS[g.algo]} on {g.env_id} ({count_seeds(len(g.seeds))})" for g in used}
-        ),
-    }
-
-
-def not_judged(claim_id: int, title: str, paper: str, why: str) -> dict[str, Any]:
-    return {
-        "id": claim_id,
-        "title": title,
-        "paper": paper,
-        "verdict": f"not judged: {why}",
-        "steps": None,
-        "seeds": None,
-        "decides": [],
-        "primary": [],
-        "not_met": [],
-        "parts": [],
-        "effect": None,
-        "algorithms": [],
-    }
+def _verb(outcome: str) -> str:
+    return {HOLDS: "hold", FAILS: "fail", EQUIVALENT: "be equivalent"}.get(outcome, outcome)
