@@ -105,6 +105,7 @@ class Check:
     within: tuple[float, float] | None = None
     smallest_effect: float | None = None  # for ``above`` on a difference
     part: str | None = None  # the claim's part it tests
+    id: str | None = None  # "<part>.<k>": the k-th declared check of the part, e.g. "3b.1"
     counted: bool = False  # decided by counting seeds, not by a test
     seeds_meeting: int | None = None
     not_testable: str | None = None  # why the check cannot be decided at this budget
@@ -173,6 +174,7 @@ class Check:
         est = self.estimate
         return {
             "what": self.what,
+            "id": self.id,
             "part": self.part,
             "estimate": est.value,
             "low": est.low,

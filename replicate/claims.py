@@ -260,6 +260,9 @@ def judge_claim(
     """One claim's parts, checks, preconditions and verdict over ``groups``: intervals at
     ``confidence``, each one-sided test at half its complement."""
     checks = [build_check(c, p.id, groups, confidence) for p in spec.parts for c in p.checks]
+    numbered = [f"{p.id}.{k}" for p in spec.parts for k in range(1, len(p.checks) + 1)]
+    for check, check_id in zip(checks, numbered):
+        check.id = check_id
     decide(checks, (1 - confidence) / 2)
     for check in checks:
         if not check.groups:
