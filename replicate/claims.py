@@ -355,7 +355,14 @@ def not_judged(spec: ClaimSpec, why: str) -> dict[str, Any]:
         "steps": None,
         "seeds": None,
         "parts": [
-            {"id": p.id, "statement": p.statement, "state": None, "decided_by": "", "checks": []}
+            {
+                "id": p.id,
+                "statement": p.statement,
+                "state": None,
+                "decided_by": "",
+                "checks": [],
+                "declared": [describe(c) for c in p.checks],
+            }
             for p in spec.parts
         ],
         "preconditions": [],

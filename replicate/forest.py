@@ -51,6 +51,11 @@ def _limits(check: dict[str, Any]) -> tuple[float, float]:
 
 
 def _short(what: str) -> str:
+    """A check's words for its row: the env's short name, and no more than fits."""
+    env, _, rest = what.partition(": ")
+    if rest:
+        what = env.removeprefix("dm_control/").rsplit("-v", 1)[0].replace("Continuous", "")
+        what += ": " + rest
     return what if len(what) <= 66 else what[:63] + "..."
 
 

@@ -32,7 +32,7 @@ def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_
     summary = json.loads((out / "summary.json").read_text())
     assert {f["algo"] for f in summary["final_returns"]} == set(FIG3_ALGORITHMS)
     assert len(summary["runs"]) == 2 * len(FIG3_ALGORITHMS) and not summary["failed"]
-    checks = " ".join(part["what"] for part in summary["claims"][0]["parts"])
+    checks = " ".join(" ".join(part["declared"]) for part in summary["claims"][0]["parts"])
     for label in ("DRL-EG", "SAC", "PPO", "PPO+BC", "DDPGfD"):
         assert label in checks
     assert all(len(f["finals"]) == 2 for f in summary["final_returns"])
