@@ -109,6 +109,7 @@ class Check:
     counted: bool = False  # decided by counting seeds, not by a test
     seeds_meeting: int | None = None
     not_testable: str | None = None  # why the check cannot be decided at this budget
+    testable_when: str | None = None  # what would make it testable (a longer budget, ...)
     groups: tuple[Group, ...] = ()  # whose runs more seeds would add to
     state: str = INCONCLUSIVE
     adjusted: dict[str, float] = field(default_factory=dict)

@@ -128,9 +128,9 @@ def mean_check(
         meeting = (values >= spec.within[0]) & (values <= spec.within[1])
     else:
         meeting = values > spec.above
-    blocked = None
+    blocked = later = None
     if spec.needs_published_reach:
-        blocked, _ = published_reach(spec.env, spec.above, group.budget or 0)
+        blocked, later = published_reach(spec.env, spec.above, group.budget or 0)
     return Check(
         describe(spec),
         estimate,
@@ -139,6 +139,7 @@ def mean_check(
         part=part,
         seeds_meeting=int(meeting.sum()),
         not_testable=blocked,
+        testable_when=f"a longer budget: {later}" if blocked else None,
         groups=(group,),
     )
 
@@ -198,6 +199,10 @@ def escape_check(
         check.not_testable = (
             f"no {label(spec.other)} seed ends below {_number(spec.below)} "
             f"(of {count_seeds(len(common), 'paired ')})"
+        )
+        check.testable_when = (
+            f"a seed on which {label(spec.other)} stays stuck: a longer budget or more "
+            "seeds may show one (the paper's Fig. 4 shows 1 in 4)"
         )
     return check
 
@@ -270,8 +275,15 @@ def judge_claim(
     family = sum(1 for c in checks if c.adjusted)
     for check in checks:
         decision = what_would_decide(check, family) if check.adjusted else None
-        check.decide = check.not_testable or (decision[0] if decision else None)
-        check.decide_short = check.not_testable or (decision[1] if decision else None)
+        if check.state == NO_RUNS:
+            check.decide = check.decide_short = f"{check.not_testable}: train them"
+            continue
+        if check.state == NOT_TESTABLE:
+            check.decide = f"not testable: {check.not_testable}; it needs {check.testable_when}"
+            check.decide_short = check.testable_when
+            continue
+        check.decide = decision[0] if decision else None
+        check.decide_short = decision[1] if decision else None
 
     parts, states, likely_states = [], [], []
     for part in spec.parts:

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from replicate import cli_figures, cli_runs
+from replicate import cli_confirm, cli_figures, cli_runs
 from replicate.cli_options import TIME_LIMIT_EXIT, Command
 
 # The committed run store; smoke-profile runs (numbers that mean nothing) go to their own.
@@ -84,6 +84,7 @@ def subcommands() -> list[Command]:
         *figure_commands(),
         cli_figures.REPORT,
         cli_figures.TABLE1,
+        cli_confirm.CONFIRM,
         cli_runs.CARRY,
         cli_runs.ALGOS,
         cli_runs.ENVS,
