@@ -199,3 +199,14 @@ def test_every_open_check_says_what_would_decide_it():
                 open_checks += 1
                 assert row.get("decide"), (report.name, row.get("what") or row.get("other"))
     assert open_checks
+
+
+def test_every_judged_claim_of_reduced_fig3_has_its_parts_and_forest_plot():
+    summary = json.loads((ROOT / "reports/reduced/fig3/summary.json").read_text())
+    html = (ROOT / "reports/reduced/fig3/index.html").read_text()
+    for claim in summary["claims"]:
+        assert claim["declaration"]["file"] == "replicate/declarations/drl-eg.toml"
+        assert claim["declaration"]["trained_before"] <= claim["declaration"]["runs"]
+        assert all(p["state"] in ("holds", "contradicted", "open") for p in claim["parts"])
+        section = html.split(f'id="claim-{claim["id"]}"', 1)[1].split("<h3", 1)[0]
+        assert 'class="forest"' in section, claim["id"]
