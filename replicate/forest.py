@@ -5,6 +5,7 @@ threshold, the smallest effect of interest (hatched); coloured by the check's st
 
 from __future__ import annotations
 
+import textwrap
 from typing import Any
 
 import matplotlib.pyplot as plt
@@ -50,13 +51,17 @@ def _limits(check: dict[str, Any]) -> tuple[float, float]:
     return low - pad, high + pad
 
 
+def _state_words(state: str) -> str:
+    return "not testable" if state.startswith("not testable") else state
+
+
 def _short(what: str) -> str:
     """A check's words for its row: the env's short name, and no more than fits."""
     env, _, rest = what.partition(": ")
     if rest:
         what = env.removeprefix("dm_control/").rsplit("-v", 1)[0].replace("Continuous", "")
         what += ": " + rest
-    return what if len(what) <= 66 else what[:63] + "..."
+    return what if len(what) <= 60 else what[:57] + "..."
 
 
 def forest_png(claim: dict[str, Any]) -> bytes | None:
@@ -86,6 +91,20 @@ def forest_png(claim: dict[str, Any]) -> bytes | None:
             y -= row_h
             ax = fig.add_axes((label_share, y + row_h * 0.18, 0.98 - label_share, row_h * 0.64))
             fig.text(0.02, y + row_h * 0.45, _short(check["what"]), fontsize=8.5, va="center")
+            if check["estimate"] is None or not np.isfinite(check["estimate"]):
+                ax.axis("off")  # nothing measured: say why in the row
+                why = textwrap.fill(check.get("decide_short") or "", 90)
+                ax.text(0, 0.5, why, fontsize=7.5, va="center", transform=ax.transAxes)
+                fig.text(
+                    label_share - 0.012,
+                    y + row_h * 0.45,
+                    _state_words(check["verdict"]),
+                    fontsize=9,
+                    color=FADED,
+                    va="center",
+                    ha="right",
+                )
+                continue
             low, high = _limits(check)
             ax.set_xlim(low, high)
             ax.set_ylim(-1, 1)
@@ -111,7 +130,7 @@ def forest_png(claim: dict[str, Any]) -> bytes | None:
             fig.text(
                 label_share - 0.012,
                 y + row_h * 0.45,
-                check["verdict"],
+                _state_words(check["verdict"]),
                 fontsize=9,
                 color=color,
                 va="center",
