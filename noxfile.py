@@ -83,6 +83,17 @@ def sac_random_start(session: nox.Session) -> None:
 
 
 @nox.session(python=PYTHON)
+def confirm(session: nox.Session) -> None:
+    """Confirmatory plans for the open checks of the claims (default profile: reduced), by
+    cost; `-- --check ID` writes one to plans/, `-- --check ID --train` trains it once
+    committed, `-- --status` judges the registered ones."""
+    _install(session)
+    session.run(
+        "python", "-m", "replicate", "confirm", *session.posargs, env={"MUJOCO_GL": "disable"}
+    )
+
+
+@nox.session(python=PYTHON)
 def bench(session: nox.Session) -> None:
     """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""
     _install(session)

@@ -117,6 +117,10 @@ class Check:
     decide: str | None = None
     decide_short: str | None = None
     likely: str | None = None  # the state more seeds would most likely give, if open
+    # a registered confirmatory experiment's judgement of this check (its own fresh seeds);
+    # where it has a state, the check takes it and ``exploratory`` keeps the one it replaced
+    confirmatory: dict[str, Any] | None = None
+    exploratory: str | None = None
 
     @property
     def contradicts(self) -> bool:
@@ -195,6 +199,8 @@ class Check:
             "decide_short": self.decide_short,
             "likely": self.likely,
             "contradicts": self.contradicts,
+            "confirmatory": self.confirmatory,
+            "exploratory": self.exploratory,
         }
 
 

@@ -257,13 +257,32 @@ def _part_summary(part: PartSpec, checks: list[Check], state: str) -> str:
     return words
 
 
+def take_confirmatory(checks: list[Check], confirmed: dict[str, dict[str, Any]]) -> list[str]:
+    """Give each check its registered confirmatory result; where that result has a state,
+    the check takes it (judged on the plan's fresh seeds alone) and keeps the exploratory
+    state beside it. Returns the ids of the checks whose state now rests on one."""
+    rests = []
+    for check in checks:
+        result = confirmed.get(check.id or "")
+        if result is None:
+            continue
+        check.confirmatory = result
+        if result.get("state"):
+            check.exploratory, check.state = check.state, result["state"]
+            check.likely = None
+            rests.append(check.id or "")
+    return rests
+
+
 def judge_claim(
     spec: ClaimSpec,
     groups: dict[tuple[str, str], Group],
     confidence: float,
+    confirmed: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """One claim's parts, checks, preconditions and verdict over ``groups``: intervals at
-    ``confidence``, each one-sided test at half its complement."""
+    ``confidence``, each one-sided test at half its complement; ``confirmed``: registered
+    confirmatory results by check id (``replicate.confirm_judge``)."""
     checks = [build_check(c, p.id, groups, confidence) for p in spec.parts for c in p.checks]
     numbered = [f"{p.id}.{k}" for p in spec.parts for k in range(1, len(p.checks) + 1)]
     for check, check_id in zip(checks, numbered):
@@ -284,6 +303,7 @@ def judge_claim(
             continue
         check.decide = decision[0] if decision else None
         check.decide_short = decision[1] if decision else None
+    confirmatory = take_confirmatory(checks, confirmed or {})
 
     parts, states, likely_states = [], [], []
     for part in spec.parts:
@@ -349,6 +369,7 @@ def judge_claim(
             if c.decide_short and c.state == INCONCLUSIVE
         ],
         "paired": paired,
+        "confirmatory": confirmatory,
         "algorithms": sorted(
             {f"{label(g.algo)} on {g.env_id} ({count_seeds(len(g.seeds))})" for g in used}
         ),
@@ -382,6 +403,7 @@ def not_judged(spec: ClaimSpec, why: str) -> dict[str, Any]:
         "contradicted": [],
         "decides": [],
         "paired": None,
+        "confirmatory": [],
         "algorithms": [],
         "budget_note": None,
     }
@@ -407,11 +429,13 @@ def judge_claims(
     judged_envs: set[str] | None = None,
     fig4_groups: dict[tuple[str, str], Group] | None = None,
     declaration: Declaration | None = None,
+    confirmed: dict[str, dict[str, Any]] | None = None,
 ) -> list[dict[str, Any]]:
     """Every declared claim's verdict: those on Fig. 3's runs from ``groups``, those on
     Fig. 4's from ``fig4_groups`` (None: not judged). A profile whose numbers mean nothing
     judges none; a claim on envs outside ``judged_envs`` (the profile's Fig. 3 envs; None:
-    every env) is not judged at this profile."""
+    every env) is not judged at this profile; ``confirmed``: registered confirmatory
+    results by check id, which the checks they name take."""
     declaration = declaration or load_declaration()
     ledger = []
     for spec in declaration.claims:
@@ -423,7 +447,7 @@ def judge_claims(
         elif not meaningful:
             claim = not_judged(spec, " (smoke profile: numbers mean nothing)")
         else:
-            claim = judge_claim(spec, these, declaration.confidence)
+            claim = judge_claim(spec, these, declaration.confidence, confirmed)
             claim["budget_note"] = budget_note(spec, claim)
         ledger.append(claim)
     return ledger

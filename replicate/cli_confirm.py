@@ -97,9 +97,11 @@ def _number(x: float) -> str:
 def plan_row(plan: Any) -> list[str]:
     """One plan as the table's cells."""
     from replicate.confirm import route_words
+    from replicate.verdicts import MOST_SEEDS
 
     more = plan.n is None
-    n = f">{plan.runs // len(plan.algos)}" if more else str(plan.n)
+    n = f"more than {MOST_SEEDS}" if more else str(plan.n)
+    seeds = "-" if more else f"{plan.seeds[0]}-{plan.seeds[-1]}"
     sd = "/".join(_number(s) for s in plan.sd_assumed)
     observed = "/".join(_number(s) for s in plan.sd_observed)
     changes = {o: v for o, v in plan.reachable.items() if v != plan.verdict_now}
@@ -112,6 +114,7 @@ def plan_row(plan: Any) -> list[str]:
     return [
         plan.check_id,
         f"{n} {plan.unit}",
+        seeds,
         f"{'>' if more else ''}{plan.runs}",
         f"{'>' if more else ''}{_steps(plan.env_steps)}",
         _hours(plan.hours("cpu"), more),
@@ -126,6 +129,7 @@ def plan_row(plan: Any) -> list[str]:
 HEADER = [
     "check",
     "n",
+    "seeds",
     "runs",
     "env steps",
     "2-core CPU",
@@ -160,7 +164,7 @@ def _list(args: argparse.Namespace, plans: list[Any], without: list[Any]) -> int
     level = plans[0].level if plans else None
     print(
         f"Open checks of the {args.profile} profile's claims ({args.store}), each with a plan "
-        f"on fresh seeds: {plans[0].unit if plans else 'seeds'} per algorithm for an 80% "
+        "on fresh seeds: n seeds per algorithm (pairs for a paired difference) for an 80% "
         f"chance that one registered test at {level or 0:.3g} one-sided decides it, powered "
         f"at the observed estimate with sigma at its one-sided {SIGMA_UPPER:.0%} upper "
         f"confidence limit; hours on a 2-core CPU machine ({CPU_PROCESSES} processes) and a "
@@ -168,6 +172,10 @@ def _list(args: argparse.Namespace, plans: list[Any], without: list[Any]) -> int
         if plans
         else f"Open checks of the {args.profile} profile's claims ({args.store}):"
     )
+    from replicate.profiles import get_profile
+
+    if not get_profile(args.profile).meaningful:
+        print(f"(the {args.profile} profile's numbers mean nothing: plans to try the pipeline)")
     if fits:
         print(table([plan_row(p) for p in fits]))
     if args.hours is not None and len(fits) < len(plans):
@@ -191,7 +199,7 @@ def _plan_file(args: argparse.Namespace, check_id: str) -> Path:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from replicate.confirm_judge import registered_plans, judge_plan, result_line
+    from replicate.confirm_judge import judge_plan, registered_plans, result_line
 
     plans = registered_plans(args.profile, args.plans)
     if not plans:
@@ -210,7 +218,8 @@ def _cmd_confirm(args: argparse.Namespace) -> int:
         if args.check is None:
             raise HarnessError("--train needs --check ID", "name the registered plan's check")
         return _train(args)
-    from replicate.confirm import find_plan, plan_checks, register_plan
+    from replicate.confirm import find_plan, plan_checks
+    from replicate.confirm_register import register_plan
     from replicate.declaration import load_declaration
     from replicate.profiles import get_profile
 
@@ -231,8 +240,8 @@ def _cmd_confirm(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from replicate.confirm import train_plan
     from replicate.confirm_judge import result_line
+    from replicate.confirm_register import train_plan
     from replicate.experiments import GridOptions
 
     grid = {f.name for f in dataclasses.fields(GridOptions)}

@@ -1,23 +1,20 @@
 """Confirmatory plans: for each open check of a profile's claims, the fresh seeds that would
 decide it with an 80% chance in one registered test, what they cost and which claim
-verdicts the outcome could reach; the plan written under ``plans/`` to be committed before
-its runs train; and its runs trained through the grids' usual path, into the run store like
-any other. ``replicate.confirm_judge`` judges a plan on its own runs.
+verdicts the outcome could reach. ``replicate.confirm_register`` writes a plan under
+``plans/`` (committed before its runs train) and trains its runs; ``replicate.confirm_judge``
+judges a plan on its own runs.
 
 A plan is sized from the exploratory runs (the reports' seeds) but tested on fresh seeds
 alone: at the observed effect, with the spread at sigma's one-sided 80% upper confidence
-limit (a plan sized at the point estimate of a spread from 5 seeds is underpowered about
-half the time), for a single test at the declaration's one-sided level.
+limit (sized at the point estimate of a spread from 5 seeds, a plan is underpowered more
+often than not), for a single test at the declaration's one-sided level.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import re
-import subprocess
 from dataclasses import dataclass, replace
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +22,7 @@ import numpy as np
 from scipy import stats
 
 from replicate.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE, Check
-from replicate.confirm_judge import PLANS_DIR, plan_path, read_plan
+from replicate.confirm_judge import PLANS_DIR, SEED_BLOCK, plan_path, read_plan
 from replicate.declaration import CheckSpec, Declaration, load_declaration
 from replicate.errors import HarnessError
 from replicate.profiles import Profile
@@ -39,7 +36,6 @@ from replicate.stats import (
 from replicate.verdicts import MOST_SEEDS, claim_verdict, part_state
 
 SIGMA_UPPER = 0.80  # the spread assumed: sigma's one-sided upper confidence limit at this level
-SEED_BLOCK = 1000  # fresh seeds start at the first multiple of this that no run of the cells uses
 CPU_PROCESSES = 2  # costs are stated for a 2-core CPU machine, one process per core
 GPU_PROCESSES = 1
 
@@ -209,10 +205,14 @@ _RUN_NAME = re.compile(r"^\.?(?:partial-|lock-)?(?P<algo>.+?)__(?P<env>.+)__s(?P
 
 
 def used_seeds(
-    store: Path, cells: set[tuple[str, str]], plans_dir: Path | None = PLANS_DIR
+    store: Path,
+    cells: set[tuple[str, str]],
+    plans_dir: Path | None = PLANS_DIR,
+    besides: Path | None = None,
 ) -> set[int]:
     """Every seed of the (env, algo) ``cells`` that the store holds, finished, unfinished or
-    carried, at any budget, and that a plan in ``plans_dir`` registered."""
+    carried, at any budget, and that a plan in ``plans_dir`` other than ``besides`` (the
+    check's own, rewritten until committed) registered."""
     from replicate import checkpoint_places
 
     store = Path(store)
@@ -225,6 +225,8 @@ def used_seeds(
         if match and (match["env"], match["algo"]) in slugs:
             seeds.add(int(match["seed"]))
     for path in sorted(Path(plans_dir).glob("*.toml")) if plans_dir else []:
+        if besides is not None and path.resolve() == Path(besides).resolve():
+            continue
         plan = read_plan(path)
         planned = {(plan["check"]["env"], a) for a in plan["runs"]["algos"]}
         if planned & cells:
@@ -296,7 +298,7 @@ def plan_check(
 ) -> Plan | str:
     """The plan for one open check, or why it has none."""
     est = found.check.estimate
-    if found.check.counted or found.check.not_testable:
+    if found.check.counted:
         return "decided by counting seeds, not by a test"
     if not est.defined or not np.isfinite(est.se):
         return "its estimate has no interval (fewer than 2 runs)"
@@ -323,7 +325,8 @@ def plan_check(
         n = max(2, n)
     power = chance_to_decide(assumed, routes[outcome], n, confidence) if n else None
     cells = {(found.spec.env, a) for a in (found.spec.algo, found.spec.other) if a}
-    seeds = fresh_seeds(used_seeds(store, cells, plans_dir), n or MOST_SEEDS)
+    own = plan_path(profile.name, found.check.id or "", plans_dir) if plans_dir else None
+    seeds = fresh_seeds(used_seeds(store, cells, plans_dir, own), n or MOST_SEEDS)
     return Plan(
         profile,
         declaration,
@@ -334,7 +337,7 @@ def plan_check(
         n,
         power,
         seeds,
-        (1 - confidence) / 2,
+        round((1 - confidence) / 2, 12),
         reachable_verdicts(found.claim, found.check.id or "", outcomes_of(found.spec)),
     )
 
@@ -373,335 +376,3 @@ def find_plan(plans: list[Plan], without: list[tuple[OpenCheck, str]], wanted: s
         f"check {wanted} is not an open check of this profile's claims",
         f"choose one of the open checks: {open_ids}",
     )
-
-
-# Writing a plan: TOML by hand, the few value types a plan holds.
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a TOML basic string
-    if isinstance(value, (list, tuple)):
-        items = [_toml_value(v) for v in value]
-        flat = "[" + ", ".join(items) + "]"
-        return flat if len(flat) <= 80 else "[\n" + "".join(f"  {i},\n" for i in items) + "]"
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
-    raise TypeError(f"no TOML form for {value!r}")
-
-
-def _key(key: str) -> str:
-    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
-
-
-def toml_text(tables: dict[str, dict[str, Any]], comment: str = "") -> str:
-    """``tables`` as TOML: one [table] each, None values left out."""
-    lines = [f"# {line}".rstrip() for line in comment.splitlines()]
-    for name, table in tables.items():
-        lines += ["", f"[{name}]"]
-        lines += [f"{_key(k)} = {_toml_value(v)}" for k, v in table.items() if v is not None]
-    return "\n".join(lines).lstrip("\n") + "\n"
-
-
-def plan_tables(plan: Plan, run_ids: list[str], written: str) -> dict[str, dict[str, Any]]:
-    """A plan as the tables of its file."""
-    from replicate.declaration import declaration_version
-
-    spec, est, found = plan.spec, plan.estimate, plan.open
-    steps, interval = plan.profile_budget
-    try:
-        version = declaration_version(plan.declaration.path).short
-    except (OSError, ValueError):
-        version = "uncommitted"
-    return {
-        "plan": {
-            "profile": plan.profile.name,
-            "paper": plan.declaration.key,
-            "declaration": str(plan.declaration.path),
-            "declaration_version": version,
-            "claim": found.claim["id"],
-            "part": found.part,
-            "check": plan.check_id,
-            "written": written,
-        },
-        "check": {
-            "what": found.check.what,
-            "kind": spec.kind,
-            "env": spec.env,
-            "algo": spec.algo,
-            "other": spec.other,
-            "measure": spec.measure,
-            "above": spec.above,
-            "within": list(spec.within) if spec.within else None,
-            "smallest_effect": spec.smallest_effect,
-        },
-        "test": {
-            "test": plan.test_name,
-            "level": plan.level,
-            "outcomes": [HOLDS, FAILS] + ([EQUIVALENT] if spec.smallest_effect else []),
-            "powered_for": plan.outcome,
-            "route": route_words(spec, plan.outcome),
-            "assumed_effect": est.value,
-            "assumed_sd": list(plan.sd_assumed),
-            "sd_upper_limit": SIGMA_UPPER,
-            "power": plan.power,
-            "n": plan.n,
-            "unit": plan.unit,
-            "claim_verdict_now": plan.verdict_now,
-            "claim_verdict_if": plan.reachable,
-        },
-        "exploratory": {
-            "estimate": est.value,
-            "low": est.low,
-            "high": est.high,
-            "method": est.label,
-            "sd": list(plan.sd_observed),
-            "df": est.df,
-            "n": est.n,
-            "n_other": est.n_other,
-            "runs": list(found.runs),
-        },
-        "runs": {
-            "grid": found.grid,
-            "env": spec.env,
-            "algos": list(plan.algos),
-            "seeds": list(plan.seeds),
-            "steps": steps,
-            "eval_interval": interval,
-            "eval_episodes": plan.profile.eval_episodes,
-            "env_steps": plan.env_steps,
-            "cpu_hours_2_cores": plan.hours("cpu"),
-            "gpu_hours": plan.hours("gpu"),
-            "ids": run_ids,
-        },
-    }
-
-
-def plan_comment(plan: Plan) -> str:
-    command = f"python -m replicate confirm --profile {plan.profile.name} --check {plan.check_id}"
-    return (
-        f"A confirmatory plan for check {plan.check_id} of claim {plan.open.claim['id']}, "
-        f"profile {plan.profile.name}.\n"
-        f"Written by `{command}`; commit it before its runs train:\n"
-        f"`{command} --train` trains them only while this file is committed and unchanged,\n"
-        "and refuses once it has changed after any of its runs began. Its runs are judged\n"
-        "alone, by the test in [test] at its level (one check, no Holm adjustment)."
-    )
-
-
-def plan_specs(plan: dict[str, Any], profile: Profile) -> list[Any]:
-    """The run specs of a plan file's runs: the grid's own specs of its cells (Fig. 3's, or
-    Fig. 4's for a claim on Fig. 4's runs: same hyperparameters), at the plan's seeds."""
-    from replicate.fig3 import figure3_grid
-    from replicate.fig4 import figure4_grid
-
-    runs = plan["runs"]
-    if runs["grid"] == "fig4":
-        templates = figure4_grid(profile, runs["env"], 1)
-    else:
-        templates = figure3_grid(profile, 1)[0]
-    by_cell = {(s.env_id, s.algo): s for s in templates}
-    missing = [a for a in runs["algos"] if (runs["env"], a) not in by_cell]
-    if missing:
-        raise HarnessError(
-            f"{plan['path']}: the {runs['grid']} grid of profile {profile.name} has no "
-            f"{missing[0]} on {runs['env']}",
-            "register the plan at the profile whose grid has it",
-        )
-    return [
-        replace(by_cell[(runs["env"], algo)], seed=seed)
-        for algo in runs["algos"]
-        for seed in runs["seeds"]
-    ]
-
-
-def run_ids(specs: list[Any]) -> list[str]:
-    from replicate.runner import prepare
-
-    return [prepare(spec).run_id for spec in specs]
-
-
-def register_plan(plan: Plan, plans_dir: Path = PLANS_DIR, hours: float | None = None) -> Path:
-    """Write ``plan`` as ``plans_dir/<profile>-<check>.toml``; refused where it needs more
-    than ``MOST_SEEDS`` seeds, does not fit in ``hours`` on a 2-core CPU machine, or a plan
-    for the check is already committed."""
-    if plan.n is None:
-        raise HarnessError(
-            f"check {plan.check_id} would need more than {MOST_SEEDS} {plan.unit} for an "
-            f"{DECIDING_CHANCE:.0%} chance",
-            "choose a cheaper check (`python -m replicate confirm` lists them by cost)",
-        )
-    cpu = plan.hours("cpu")
-    if hours is not None and (cpu is None or cpu > hours):
-        cost = f"about {cpu:.1f} h" if cpu is not None else "an unknown time (no CPU rate)"
-        raise HarnessError(
-            f"the plan for {plan.check_id} does not fit in {hours:g} h: {plan.runs} runs, "
-            f"{plan.env_steps:,} env steps, {cost} on a 2-core CPU machine",
-            "give --hours more, or choose a cheaper check (`python -m replicate confirm` "
-            "lists them by cost)",
-        )
-    path = plan_path(plan.profile.name, plan.check_id, plans_dir)
-    if path.is_file():
-        root = repository_root(path.parent)
-        if root is not None and _last_commit(path, root) is not None:
-            raise HarnessError(
-                f"{path} is already registered (committed)",
-                "train it with --train, or see it with --status; a registered plan is "
-                "never rewritten",
-            )
-    ids = run_ids(
-        plan_specs(
-            {
-                "path": str(path),
-                "runs": {
-                    "grid": plan.open.grid,
-                    "env": plan.spec.env,
-                    "algos": plan.algos,
-                    "seeds": plan.seeds,
-                },
-            },
-            plan.profile,
-        )
-    )
-    written = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(toml_text(plan_tables(plan, ids, written), plan_comment(plan)))
-    return path
-
-
-# Whether a plan may train: committed, unchanged since, and none of its runs begun before.
-
-
-def _git(root: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True)
-
-
-def repository_root(directory: Path) -> Path | None:
-    """The git work tree holding ``directory``; None outside one (or without git)."""
-    try:
-        found = _git(Path(directory), "rev-parse", "--show-toplevel")
-    except OSError:
-        return None
-    return Path(found.stdout.strip()) if found.returncode == 0 else None
-
-
-def _last_commit(path: Path, root: Path) -> tuple[str, datetime] | None:
-    logged = _git(root, "log", "-1", "--format=%H %aI", "--", _relative(path, root)).stdout
-    parts = logged.split()
-    return (parts[0], datetime.fromisoformat(parts[1])) if len(parts) == 2 else None
-
-
-def _relative(path: Path, root: Path) -> str:
-    return Path(path).resolve().relative_to(Path(root).resolve()).as_posix()
-
-
-def run_starts(store: Path, ids: list[str]) -> dict[str, datetime]:
-    """When each of ``ids`` that the store holds (finished or not) began training."""
-    from replicate.run_recorder import read_segments
-
-    starts = {}
-    for run_id in ids:
-        finished, partial = Path(store) / run_id, Path(store) / f".partial-{run_id}"
-        started = None
-        if (finished / "provenance.json").is_file():
-            started = json.loads((finished / "provenance.json").read_text()).get("started_utc")
-        elif partial.is_dir():
-            segments = read_segments(partial)
-            started = segments[0].get("started_utc") if segments else None
-        if started:
-            starts[run_id] = datetime.fromisoformat(started)
-    return starts
-
-
-def check_registered(plan_file: Path, root: Path, store: Path, ids: list[str]) -> str:
-    """Raise, in one line, unless ``plan_file`` is committed in the repository at ``root``,
-    unchanged since, and every run of ``ids`` in the store began after that commit; returns
-    the commit."""
-    rel = _relative(plan_file, root)
-    status = _git(root, "status", "--porcelain", "--", rel)
-    if status.returncode != 0:
-        raise HarnessError(f"{root} is not a git repository", "keep plans in the repository")
-    last = _last_commit(plan_file, root)
-    if last is None:
-        raise HarnessError(
-            f"{rel} is not committed",
-            f"commit it before its runs train: git add {rel} && git commit",
-        )
-    commit, date = last
-    starts = run_starts(store, ids)
-    early = sorted((s, r) for r, s in starts.items() if s < date)
-    if early:
-        started, run_id = early[0]
-        raise HarnessError(
-            f"{rel} changed (commit {commit[:10]} of {date.isoformat()}) after its run "
-            f"{run_id} began ({started.isoformat()}): the plan is not the one its runs "
-            f"were registered under",
-            f"restore it as it was when its runs began (git log -- {rel}) and commit that, "
-            "or register a new plan with fresh seeds",
-        )
-    if status.stdout.strip():
-        raise HarnessError(
-            f"{rel} has changes that are not committed",
-            f"commit them before any run trains (git commit {rel}), or restore it "
-            f"(git checkout -- {rel})"
-            if not starts
-            else f"restore it as committed (git checkout -- {rel}): its runs have begun",
-        )
-    return commit
-
-
-def train_plan(
-    plan_file: Path, store: Path, options: Any = None, root: Path | None = None
-) -> dict[str, Any] | None:
-    """Train a registered plan's runs (what the store lacks), through the grids' usual path,
-    only while its file is committed, unchanged, and none of its runs began before that
-    commit (``check_registered``); then judge it (``confirm_judge.judge_plan``). A dry run
-    prints what would train, without the git check, and returns None."""
-    from replicate.confirm_judge import judge_plan
-    from replicate.experiments import GridOptions
-    from replicate.grids import train_cells
-    from replicate.profiles import get_profile
-
-    options = options or GridOptions()
-    plan = read_plan(plan_file)
-    profile = get_profile(plan["plan"]["profile"])
-    specs = plan_specs(plan, profile)
-    ids = run_ids(specs)
-    if ids != list(plan["runs"]["ids"]):
-        raise HarnessError(
-            f"{plan_file}: the grid's runs at these seeds are no longer the registered ones "
-            "(the profile's budget or an algorithm's settings changed)",
-            "register a new plan at the current settings, with fresh seeds",
-        )
-    if not options.dry_run:
-        root = root or repository_root(Path(plan_file).parent)
-        if root is None:
-            raise HarnessError(
-                f"{plan_file} is not in a git repository",
-                "keep plans in the repository (plans/) and commit them before training",
-            )
-        check_registered(Path(plan_file), root, Path(store), ids)
-    command = (
-        f"python -m replicate confirm --profile {profile.name} "
-        f"--check {plan['plan']['check']} --train"
-    )
-    outcome = train_cells(specs, specs, Path(store), command, options)
-    if options.dry_run:
-        return None
-    if outcome.failed:
-        run_id, reason = outcome.failed[0]
-        raise HarnessError(
-            f"{len(outcome.failed)} run(s) of the plan failed, e.g. {run_id}: {reason}",
-            "read the reason, fix, and run the same command",
-        )
-    return judge_plan(plan, Path(store))

@@ -17,6 +17,9 @@ from replicate.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE
 from replicate.errors import HarnessError
 
 PLANS_DIR = Path("plans")  # relative to the repository root, committed with the plans
+# Plans' fresh seeds start at a multiple of this: the figures' grids number their seeds from
+# 0, and a report that reads every run of a cell leaves these out
+SEED_BLOCK = 1000
 OUTCOMES = (EQUIVALENT, HOLDS, FAILS)  # the ledger's order: a negligible difference first
 
 
@@ -134,9 +137,10 @@ def result_line(result: dict[str, Any]) -> str:
     if result["state"] is None:
         return head + f"{progress['done']} of {progress['planned']} runs done ({result['plan']})"
     p = result["p"]
+    p_words = f"p = {p:.2g}" if p is not None and np.isfinite(p) else "no p-value"
     return head + (
         f"{result['state']}: {result['estimate']:.4g} [{result['low']:.4g}, "
-        f"{result['high']:.4g}], {result['method']}, p = {p:.2g} at {result['level']:.3g} "
+        f"{result['high']:.4g}], {result['method']}, {p_words} at {result['level']:.3g} "
         f"one-sided ({result['plan']})"
     )
 
@@ -145,6 +149,7 @@ __all__ = [
     "HOLDS",
     "FAILS",
     "PLANS_DIR",
+    "SEED_BLOCK",
     "confirmatory_results",
     "judge_plan",
     "read_plan",

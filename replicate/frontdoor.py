@@ -139,6 +139,7 @@ def verdict_table(entries: list[ReportEntry]) -> tuple[list[str], list[dict[str,
                     if p.get("state")
                 ],
                 "likely": claim.get("likely"),
+                "confirmatory": claim.get("confirmatory", []),
                 "preconditions": [
                     p["detail"] for p in claim.get("preconditions", []) if not p["observed"]
                 ],

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from replicate.confirm_judge import SEED_BLOCK
 from replicate.figure_registry import FigureReport, budget_words, register, seed_words
 from replicate.profiles import BUDGETS
 from replicate.store import Run, completed_runs
@@ -23,7 +24,9 @@ GUIDED_ALGORITHMS = ("drl-eg", "drl-eg-gmm", "drl-eg-twin-q")
 
 def guided_runs(profile: str, store: Path) -> list[Run]:
     """The store's DRL-EG runs of ``profile``'s Fig. 3 cells: at its budget for their env and
-    with the T2 in force there (the threshold ablation's other T2 values left out)."""
+    with the T2 in force there (the threshold ablation's other T2 values left out), at the
+    grid's seeds (a confirmatory plan's fresh seeds, ``confirm_judge.SEED_BLOCK`` on, left
+    out)."""
     from replicate.drl_eg_settings import drl_eg_env_defaults
 
     budgets = BUDGETS["fig3"][profile]
@@ -45,6 +48,7 @@ def guided_runs(profile: str, store: Path) -> list[Run]:
         and (run.spec["total_steps"], run.spec["eval_interval"])
         == budgets.get(run.spec["env_id"], (None, None))
         and fig3_t2(run)
+        and run.spec["seed"] < SEED_BLOCK  # a confirmatory plan's runs are judged on their own
     ]
 
 

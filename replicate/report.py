@@ -330,18 +330,24 @@ def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict
     outside the profile's budget names the report that judges it (``where``: a link within
     reports/)."""
     from replicate.claims import claim_envs, judge_claims
+    from replicate.confirm_judge import confirmatory_results
     from replicate.declaration import load_declaration
     from replicate.profiles import report_dir
 
     declaration = load_declaration()
     envs_of = claim_envs(declaration)
     fig3_runs_absent = not runs  # the Fig. 4 report asks for its claims alone
+    stores = {r.path.parent for r in runs + fig4_runs}
+    confirmed = {}
+    for store in sorted(stores) if profile.meaningful else []:
+        confirmed.update(confirmatory_results(profile.name, store))
     claims = judge_claims(
         claim_groups(runs),
         profile.meaningful,
         judged_envs=set(profile.steps),
         fig4_groups=claim_groups(fig4_runs) if fig4_runs else None,
         declaration=declaration,
+        confirmed=confirmed,
     )
     record = _declaration_record(runs + fig4_runs)
     for claim, spec in zip(claims, declaration.claims):

@@ -237,3 +237,24 @@ def test_a_check_reads_only_its_own_groups():
     for what, check in before.items():
         if check["verdict"] != "no runs":
             assert (after[what]["low"], after[what]["high"]) == (check["low"], check["high"])
+
+
+def test_a_confirmatory_result_decides_its_check_and_an_unfinished_one_does_not():
+    sac = np.array([1000.0, 2000, 1500, 1200, 1700])
+    groups = {}
+    for env in (HOPPER, CHEETAH):
+        groups[(env, "sac")] = group(env, "sac", sac)
+        groups[(env, "drl-eg")] = group(env, "drl-eg", sac + [600, -500, 300, -400, 100])
+    exploratory = judged(2, groups)
+    assert part(exploratory, "2b")["checks"][0]["verdict"] == "inconclusive"
+    unfinished = {"2b.1": {"state": None, "progress": {"done": 3, "planned": 34}}}
+    claim = judge_claim(DECLARATION.claim(2), groups, DECLARATION.confidence, unfinished)
+    check = part(claim, "2b")["checks"][0]
+    assert check["verdict"] == "inconclusive" and check["confirmatory"]["progress"]["done"] == 3
+    assert claim["confirmatory"] == []
+    failed = {"2b.1": {"state": "fails", "progress": {"done": 34, "planned": 34}}}
+    claim = judge_claim(DECLARATION.claim(2), groups, DECLARATION.confidence, failed)
+    check = part(claim, "2b")["checks"][0]
+    assert (check["verdict"], check["exploratory"]) == ("fails", "inconclusive")
+    assert part(claim, "2b")["state"] == "contradicted" and claim["confirmatory"] == ["2b.1"]
+    assert claim["verdict"] == "not reproduced"

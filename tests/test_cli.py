@@ -218,7 +218,17 @@ def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeyp
 
 @pytest.mark.parametrize(
     "command",
-    ["fig3", "fig4", "ablate-threshold", "compare-rlfd", "report", "train", "expert", "carry"],
+    [
+        "fig3",
+        "fig4",
+        "ablate-threshold",
+        "compare-rlfd",
+        "report",
+        "train",
+        "expert",
+        "carry",
+        "confirm",
+    ],
 )
 def test_help_describes_every_profile_and_states_each_default_once(command, capsys, monkeypatch):
     from replicate.profiles import PROFILES
