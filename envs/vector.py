@@ -127,7 +127,10 @@ def _serve(conn: Any, env_id: str, seeds: list[int]) -> None:
         conn.send(("error", traceback.format_exc()))
         return
     while True:
-        message = conn.recv()
+        try:
+            message = conn.recv()
+        except (EOFError, KeyboardInterrupt):  # the parent is gone or stopping: no traceback
+            return
         if message is None:
             break
         method, args = message
