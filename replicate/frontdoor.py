@@ -140,6 +140,13 @@ def verdict_table(entries: list[ReportEntry]) -> tuple[list[str], list[dict[str,
                 ],
                 "likely": claim.get("likely"),
                 "confirmatory": claim.get("confirmatory", []),
+                "under_way": [
+                    f"{c['id']}: {c['confirmatory']['progress']['done']} of "
+                    f"{c['confirmatory']['progress']['planned']} runs"
+                    for p in claim.get("parts", [])
+                    for c in p.get("checks", [])
+                    if c.get("confirmatory") and not c["confirmatory"].get("state")
+                ],
                 "preconditions": [
                     p["detail"] for p in claim.get("preconditions", []) if not p["observed"]
                 ],
