@@ -17,6 +17,7 @@ from replicate.cli_options import (
     HelpFormatter,
     add_device_argument,
     add_time_limit_argument,
+    positive_int,
     profiles_help,
 )
 
@@ -62,7 +63,7 @@ def _declare(sub: Any) -> None:
     parser.add_argument("--store", type=Path, default=None, help=STORE_HELP)
     parser.add_argument(
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
         help="parallel training processes (default: one per core)",
     )

@@ -22,6 +22,17 @@ STORE_HELP = (
 TIME_LIMIT_EXIT = 75
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number of at least 1 (a count of workers or seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 class HelpFormatter(argparse.HelpFormatter):
     """States an option's default once: appended only where its help does not already say
     it and there is one to state (ArgumentDefaultsHelpFormatter appends "(default: None)"
@@ -152,7 +163,7 @@ def add_grid_arguments(
         parser.add_argument("--seeds", type=int, default=None, help=seeds_help)
     parser.add_argument(
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
         help="parallel training processes (default: one per core)",
     )

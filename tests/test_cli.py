@@ -258,3 +258,11 @@ def test_expert_without_env_trains_every_expert_env_in_turn(monkeypatch):
     seen.clear()
     assert cli.main(["expert", "--env", "Hopper-v5", "--export-only"]) == 0
     assert seen == ["Hopper-v5"]
+
+
+@pytest.mark.parametrize("workers", ["-1", "0", "two"])
+def test_a_worker_count_below_one_is_refused_in_one_line(workers, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["fig3", "--workers", workers, "--dry-run"])
+    assert stop.value.code == 2
+    assert "argument --workers" in capsys.readouterr().err.strip().splitlines()[-1]
