@@ -159,8 +159,10 @@ def fit_neural_guider(
     generator = torch.Generator().manual_seed(seed)
     states = torch.as_tensor(np.asarray(demos.observations, dtype=np.float32))
     actions = torch.as_tensor(np.asarray(demos.actions, dtype=np.float32))
-    with torch.random.fork_rng():  # keep the global stream (SAC's weights) untouched
-        torch.manual_seed(seed)
+    # keep the global CPU stream (SAC's weights) untouched; devices=[] and the CPU generator
+    # alone, so that a CPU run on a GPU machine starts no CUDA context
+    with torch.random.fork_rng(devices=[]):
+        torch.random.default_generator.manual_seed(seed)
         net = mlp(states.shape[1], actions.shape[1], hidden)
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
     for _ in range(steps):

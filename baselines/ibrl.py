@@ -185,7 +185,9 @@ class IBRLAgent(TwinQSACAgent):
             batch = self.buffer.sample(self.batch_size, rngs)
             noise = self._cpu_noise()
         else:
-            uniform = torch.rand((self.members, self.batch_size), device=self.device)
+            uniform = torch.rand(
+                (self.members, self.batch_size), device=self.device, dtype=torch.float64
+            )  # float64: evenly likely slots in a large replay (offpolicy.py)
             size = self.buffer.size
             batch = self.buffer.gather((uniform * size).long().clamp_(max=size - 1))
             noise = self._device_noise(batch)

@@ -192,7 +192,9 @@ class RLPDAgent(TwinQSACAgent):
             .long()
             .clamp_(max=n_demos - 1)
         )
-        uniform = torch.rand((self.members, self.batch_size - half), device=self.device)
+        uniform = torch.rand(
+            (self.members, self.batch_size - half), device=self.device, dtype=torch.float64
+        )  # float64: evenly likely slots in a large replay (offpolicy.py)
         online = torch.minimum((uniform * size).long(), size - 1)
         return self.buffer.gather_halves(demo, online)
 

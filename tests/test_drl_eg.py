@@ -229,3 +229,24 @@ def test_guidance_on_twin_q_sac_is_off_at_zero_and_guides_at_a_large_threshold()
     )
     assert guided[1].guided_fraction == 1.0
     assert set(np.round(replay.member(0).actions[:400, 0], 6)) <= {-0.5, 0.5}
+
+
+def test_neural_guider_seeds_the_cpu_stream_alone_and_as_before(monkeypatch):
+    """Its initial weights are those torch.manual_seed(seed) gives, drawn without touching
+    any CUDA generator, so that a CPU run on a GPU machine starts no CUDA context."""
+    from baselines.common.networks import mlp
+
+    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
+    forked = []
+    fork = torch.random.fork_rng
+    monkeypatch.setattr(
+        torch.random, "fork_rng", lambda *a, **k: forked.append(k.get("devices")) or fork(*a, **k)
+    )
+    net = fit_neural_guider(demos, hidden=(8,), steps=0, seed=5)
+    assert forked == [[]]
+    before = torch.random.get_rng_state()
+    torch.manual_seed(5)
+    expected = mlp(2, 1, (8,))
+    torch.random.set_rng_state(before)
+    for got, want in zip(net.parameters(), expected.parameters()):
+        assert torch.equal(got, want)
