@@ -313,6 +313,12 @@ def evaluate_members(
 DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the losses on a GPU
 
 
+def losses_due(device_type: str, step: int, total_steps: int) -> bool:
+    """Whether this step's losses are read: every step on CPU; on a GPU every
+    ``DIVERGENCE_CHECK_INTERVAL`` steps (reading them waits for the device)."""
+    return device_type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0 or step == total_steps
+
+
 def train_members(
     bctx: BatchContext,
     agent: OffPolicyAgent,
@@ -457,6 +463,11 @@ def run_off_policy(
                 guided = np.zeros(n, dtype=bool)
             else:
                 actions, guided = explorer.choose(obs)
+            # a member whose networks diverged between looks at its losses (on a GPU) fails
+            # here, alone, before its NaN action reaches its env and the batch's shared
+            # lookups (a KD-tree refuses a NaN state for every member)
+            for k in np.flatnonzero(alive & ~np.isfinite(actions).all(axis=1)):
+                fail(k, f"diverged at step {step}: a non-finite action", total_steps - step + 1)
             actions[~alive] = idle_action
             result = envs.step(actions, active=alive)
             buffer.add(obs, actions, result.rewards, result.next_obs, result.terminated)
@@ -471,12 +482,7 @@ def run_off_policy(
             if step >= cfg.learning_starts:
                 for _ in range(cfg.gradient_steps):
                     losses = agent.update(batch_rngs)
-                look = (
-                    agent.device.type == "cpu"
-                    or step % DIVERGENCE_CHECK_INTERVAL == 0
-                    or step == total_steps
-                )
-                if look:
+                if losses_due(agent.device.type, step, total_steps):
                     q_loss = losses["q_loss"].cpu().numpy()
                     for k in np.flatnonzero(alive & ~np.isfinite(q_loss)):
                         fail(

@@ -583,3 +583,25 @@ def test_a_batch_checkpoint_from_before_the_two_adam_groups_says_how_to_start_ov
     state["v_optimizer"] = torch.optim.Adam(batch.v.parameters(), fused=True).state_dict()
     with pytest.raises(ValueError, match=r"predates .* delete the batch's checkpoint"):
         load_agent_state(batch, state)
+
+
+def test_a_member_diverging_between_looks_at_its_losses_fails_alone(tmp_path, monkeypatch):
+    """On a GPU the losses are read every 100 steps; a member whose networks turned NaN in
+    between must not pass its NaN state to the DRL-EG batch's shared KD-tree lookup (which
+    would fail the whole batch and discard every member's work)."""
+    monkeypatch.setattr("baselines.offpolicy.losses_due", lambda device, step, total: step == total)
+    original = SACAgent._gradient_step
+
+    def poisoned(self, batch, noise):
+        losses = original(self, batch, noise)
+        with torch.no_grad():
+            for weight in self.policy.parameters():
+                weight[1] = float("nan")  # member 1's slice of the stacked policy
+        return losses
+
+    monkeypatch.setattr("baselines.sac.SACAgent._gradient_step", poisoned)
+    members = [prepare(s) for s in _specs(algo="drl-eg", seeds=(0, 1, 2), guide_threshold=1.0)]
+    outcome = execute_batch(members, tmp_path, device="cpu")
+    assert [run_id for run_id, _ in outcome.failed] == [members[1].run_id]
+    assert "non-finite action" in outcome.failed[0][1]
+    assert all(is_complete(members[k].directory(tmp_path)) for k in (0, 2))
