@@ -25,6 +25,7 @@ from replicate.checks import (
     where,
 )
 from replicate.declaration import CheckSpec, ClaimSpec, Declaration, PartSpec, load_declaration
+from replicate.published import published_points
 from replicate.stats import seed_matched_difference, t_mean
 from replicate.templating import count_seeds
 from replicate.verdicts import (
@@ -86,8 +87,6 @@ def describe(spec: CheckSpec) -> str:
 def published_reach(env_id: str, level: float, budget: int) -> tuple[str | None, str]:
     """Why ``level`` cannot be tested at ``budget`` (no published SAC reaches it by then;
     None: one does), and the budget at which published SAC first reaches it."""
-    from replicate.published import published_points
-
     points = published_points(env_id, 10**9)
     within = [p for p in points if p.steps <= budget]
     best = max(within, key=lambda p: p.mean, default=None)

@@ -21,10 +21,16 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from replicate import checkpoint_places
 from replicate.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE, Check
+from replicate.claims import build_check, judge_claims
 from replicate.confirm_judge import PLANS_DIR, SEED_BLOCK, plan_path, read_plan
 from replicate.declaration import CheckSpec, Declaration, load_declaration
 from replicate.errors import HarnessError
+from replicate.fig3 import figure3_command, figure3_grid
+from replicate.fig4 import figure4_runs
+from replicate.grids import stored_outcome
+from replicate.groups import claim_groups
 from replicate.profiles import Profile
 from replicate.stats import (
     DECIDING_CHANCE,
@@ -213,7 +219,6 @@ def used_seeds(
     """Every seed of the (env, algo) ``cells`` that the store holds, finished, unfinished or
     carried, at any budget, and that a plan in ``plans_dir`` other than ``besides`` (the
     check's own, rewritten until committed) registered."""
-    from replicate import checkpoint_places
 
     store = Path(store)
     names = [p.name for p in store.iterdir()] if store.is_dir() else []
@@ -249,11 +254,6 @@ def open_checks(
     """Every inconclusive check of the profile's claims, judged with ``declaration`` (the
     paper's by default) on the profile's Fig. 3 and Fig. 4 runs in the store. Judged even
     where the profile's numbers mean nothing (smoke), so that plans can be tried there."""
-    from replicate.claims import build_check, judge_claims
-    from replicate.fig3 import figure3_command, figure3_grid
-    from replicate.fig4 import figure4_runs
-    from replicate.grids import stored_outcome
-    from replicate.report import claim_groups
 
     declaration = declaration or load_declaration()
     specs, skipped = figure3_grid(profile)

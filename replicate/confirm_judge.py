@@ -2,7 +2,7 @@
 its seeds trained and no others, with the test and level it registered (one check per
 plan, so no Holm adjustment). ``replicate.confirm`` writes and trains the plans.
 
-Imports nothing heavy and runs no git: the reports and the front door read it.
+Imports no torch and runs no git: the reports read it.
 """
 
 from __future__ import annotations
@@ -14,7 +14,11 @@ from typing import Any
 import numpy as np
 
 from replicate.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE
+from replicate.claims import build_check
+from replicate.declaration import CheckSpec
 from replicate.errors import HarnessError
+from replicate.groups import claim_groups
+from replicate.store import is_complete, load_run
 
 PLANS_DIR = Path("plans")  # relative to the repository root, committed with the plans
 # Plans' fresh seeds start at a multiple of this: the figures' grids number their seeds from
@@ -55,8 +59,6 @@ def registered_plans(profile: str, plans_dir: Path = PLANS_DIR) -> list[dict[str
 
 def check_spec(plan: dict[str, Any]) -> Any:
     """The plan's check as a declaration's ``CheckSpec``."""
-    from replicate.declaration import CheckSpec
-
     c = plan["check"]
     return CheckSpec(
         c["kind"],
@@ -77,9 +79,6 @@ def judge_plan(plan: dict[str, Any] | Path, store: Path) -> dict[str, Any]:
     ``p``: the p-value of the state reached, or for an inconclusive check of the outcome the
     plan was powered for (the larger of two for an equivalence test); ``p_values``: every
     outcome's."""
-    from replicate.claims import build_check
-    from replicate.report import claim_groups
-    from replicate.store import is_complete, load_run
 
     plan = read_plan(plan) if isinstance(plan, Path) else plan
     ids = list(plan["runs"]["ids"])

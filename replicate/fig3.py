@@ -21,16 +21,14 @@ from replicate.experiments import GridOptions
 from replicate.figures import CurveBand, aggregate_png, learning_curves_png
 from replicate.forest import forest_images
 from replicate.grids import algorithm_overrides, stored_outcome, train_and_report
+from replicate.groups import claim_groups, curve_matrix, group_runs
 from replicate.measures import final_returns
 from replicate.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile, get_profile
 from replicate.published import FAMILY_TITLES, published_points
 from replicate.report import (
     REPORT_SEED,
-    claim_groups,
-    curve_matrix,
     demo_returns,
     drl_eg_improvement,
-    group_runs,
     ledger,
     published_rows,
     sac_standing,

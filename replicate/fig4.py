@@ -28,9 +28,9 @@ from replicate.grids import (
     train_cells,
     write_saying_why,
 )
+from replicate.groups import claim_groups
 from replicate.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.report import (
-    claim_groups,
     ledger,
     published_rows,
     threats_to_validity,

@@ -11,11 +11,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import pandas as pd
 
 from replicate.checks import Group
+from replicate.claims import claim_envs, judge_claims, label
+from replicate.confirm_judge import confirmatory_results
+from replicate.declaration import declaration_version, load_declaration, trained_before
 from replicate.figure_registry import seed_words
-from replicate.measures import final_returns, last_returns
+from replicate.groups import READINGS, claim_groups
+from replicate.measures import DEFAULT_DECLARATION
 from replicate.profiles import PAPER_SEEDS_FIG3, Profile
 from replicate.published import published_points
 from replicate.stats import (
@@ -27,65 +30,6 @@ from replicate.store import Run
 from replicate.templating import report_environment, step_share
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
-
-
-def group_runs(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
-    groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
-    for run in runs:
-        groups[(run.spec["env_id"], run.spec["algo"])].append(run)
-    for members in groups.values():
-        members.sort(key=lambda r: r.spec["seed"])
-    return dict(groups)
-
-
-def curve_matrix(runs: list[Run], column: str = "return_mean") -> tuple[np.ndarray, np.ndarray]:
-    """(steps, returns[runs, steps]) over the evaluation steps that every run shares;
-    ``column``: the evaluations' mean return, or ``train_return`` (training episodes)."""
-    common = sorted(set.intersection(*(set(r.curve["step"]) for r in runs)))
-    matrix = np.stack([r.curve.set_index("step").loc[common, column].to_numpy(float) for r in runs])
-    return np.asarray(common), matrix
-
-
-def training_rates(members: list[Run]) -> dict[str, float]:
-    """Env steps per second of one training process (a seed batch's members together), by
-    device kind, median over the runs: what more seeds of this cell would cost."""
-    by_kind: dict[str, list[float]] = defaultdict(list)
-    for run in members:
-        if run.process_rate is not None:
-            by_kind["gpu" if run.trained_on_gpu else "cpu"].append(run.process_rate)
-    return {kind: float(np.median(rates)) for kind, rates in by_kind.items()}
-
-
-READINGS = ("evaluations", "last evaluation", "training episodes")
-
-
-def claim_groups(runs: list[Run], reading: str = "evaluations") -> dict[tuple[str, str], Group]:
-    """The runs of each (env, algorithm) as the claims ledger reads them: the declared
-    measures over the evaluation curves; or, for the robustness line, the final return as
-    the single last evaluation, or every measure over the training episodes' returns
-    (cells whose runs record none are left out)."""
-    groups = {}
-    for (env_id, algo), members in group_runs(runs).items():
-        column = "train_return" if reading == "training episodes" else "return_mean"
-        steps, matrix = curve_matrix(members, column)
-        if reading == "training episodes":
-            # the first point precedes any training episode; between episode ends the last
-            # finished episode's return stands; a cell with a run that records none is left out
-            steps, matrix = steps[1:], matrix[:, 1:]
-            if not len(steps) or not np.isfinite(matrix).any(axis=1).all():
-                continue
-            matrix = pd.DataFrame(matrix.T).ffill().bfill().to_numpy().T
-        finals = last_returns(steps, matrix) if reading == "last evaluation" else None
-        groups[(env_id, algo)] = Group(
-            env_id,
-            algo,
-            [r.spec["seed"] for r in members],
-            final_returns(steps, matrix) if finals is None else finals,
-            matrix,
-            steps,
-            training_rates(members),
-        )
-    return groups
 
 
 def drl_eg_improvement(
@@ -276,8 +220,6 @@ def judging_profile(claim_envs: tuple[str, ...]) -> str | None:
 def _declaration_record(runs: list[Run]) -> dict[str, Any]:
     """The declaration a ledger judged with: its file, version, and how many of the
     ledger's runs were trained before that version."""
-    from replicate.declaration import declaration_version, trained_before
-    from replicate.measures import DEFAULT_DECLARATION
 
     version = declaration_version(DEFAULT_DECLARATION)
     started = [r.provenance.get("started_utc") for r in runs]
@@ -296,8 +238,6 @@ def _robustness(
 ) -> None:
     """Each judged claim's verdict under the single last evaluation and under the training
     episodes' returns, beside the declared reading (``claim["robustness"]``)."""
-    from replicate.claims import judge_claims, label
-    from replicate.declaration import load_declaration
 
     specs = {c.id: c for c in load_declaration().claims}
     judged = [c for c in claims if not c["verdict"].startswith("not judged")]
@@ -329,9 +269,6 @@ def ledger(runs: list[Run], fig4_runs: list[Run], profile: Profile) -> list[dict
     runs from ``runs``, those on Fig. 4's paired runs from ``fig4_runs``; a claim on envs
     outside the profile's budget names the report that judges it (``where``: a link within
     reports/)."""
-    from replicate.claims import claim_envs, judge_claims
-    from replicate.confirm_judge import confirmatory_results
-    from replicate.declaration import load_declaration
     from replicate.profiles import report_dir
 
     declaration = load_declaration()

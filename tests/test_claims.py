@@ -209,7 +209,7 @@ def test_a_malformed_declaration_names_its_claim_and_field(tmp_path, edit, messa
 
 
 def test_a_second_paper_declared_the_same_way_judges_smoke_runs(smoke_fig3):
-    from replicate.report import claim_groups
+    from replicate.groups import claim_groups
     from replicate.store import completed_runs
 
     store, _ = smoke_fig3

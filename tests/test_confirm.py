@@ -37,7 +37,7 @@ def declaration(store, tmp_path):
     at 2.5% needs 12.7), and one check that fails, so an outcome can change a verdict."""
     from replicate.fig3 import figure3_grid
     from replicate.grids import stored_runs
-    from replicate.report import claim_groups
+    from replicate.groups import claim_groups
     from replicate.stats import paired_mean_difference, t_mean
 
     groups = claim_groups(stored_runs(figure3_grid(SMOKE)[0], store))

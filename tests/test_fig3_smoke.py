@@ -133,7 +133,7 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
     from replicate.fig3 import efficiency_rows, summarise
-    from replicate.report import claim_groups
+    from replicate.groups import claim_groups
     from tests.test_rlfd import _run
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]
