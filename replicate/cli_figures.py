@@ -120,13 +120,16 @@ def _declare_rlfd(sub: Any) -> None:
 
 
 def _declare_report(sub: Any) -> None:
+    from replicate.figure_registry import figures
+
     report = sub.add_parser(
         "report",
         help="rebuild reports from the run store without training",
-        description="Rebuild every report of a profile (Fig. 3, Fig. 4, the threshold "
-        "ablation, Table 1) from the runs already in the store; nothing is trained. "
-        "Fig. 3 lists its missing runs; Fig. 4 and the ablation are left as they "
-        "are when the store holds none of their runs.",
+        description="Rebuild the reports of a profile (every registered one: "
+        f"{', '.join(figures())}; then table1 and the front door, reports/index.html) "
+        "from the runs already in the store; nothing is trained. Without --profile: the "
+        "quick profile's reports and the other profiles' reports already written. Fig. 3 "
+        "lists its missing runs; a report whose runs the store lacks is left as it is.",
         formatter_class=HelpFormatter,
     )
     report.add_argument(
@@ -134,9 +137,8 @@ def _declare_report(sub: Any) -> None:
         default=None,
         choices=PROFILE_NAMES,
         help=profiles_help(
-            "which profile's reports to rebuild (default: "
-            "every profile but smoke whose runs are in the "
-            "store)"
+            "which profile's reports to rebuild (default: the quick profile's, and "
+            "the reports of other profiles but smoke that were already written)"
         ),
     )
     report.add_argument(

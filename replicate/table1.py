@@ -9,7 +9,7 @@ from typing import Any
 
 from envs import ENV_SPECS, make_env
 from replicate.demos import default_demo_path, load_demos
-from replicate.errors import DemoError
+from replicate.errors import DemoError, HarnessError
 from replicate.templating import report_environment
 
 # The targets for the harness's experts (the demonstrations' mean return): within or just
@@ -31,9 +31,11 @@ def table1_rows() -> list[dict[str, Any]]:
         live = (env.observation_space.shape[0], env.action_space.shape[0])
         env.close()
         if live != (spec.obs_dim, spec.act_dim):
-            raise RuntimeError(
-                f"{spec.env_id}: spec table says {spec.obs_dim}/{spec.act_dim} "
-                f"dims but the env has {live[0]}/{live[1]}"
+            raise HarnessError(
+                f"{spec.env_id}: the env table (envs/__init__.py, ENV_SPECS) says "
+                f"{spec.obs_dim} observation and {spec.act_dim} action dims, but the env has "
+                f"{live[0]} and {live[1]}",
+                f"set its row to obs_dim={live[0]}, act_dim={live[1]}",
             )
         row = asdict(spec)
         differs = spec.paper_obs_dim is not None and spec.paper_obs_dim != spec.obs_dim

@@ -37,3 +37,17 @@ def test_table1_states_each_mujoco_expert_against_its_target():
         assert row["target"]["met"] == (mean >= target)
         assert row["target"]["short_by"] == pytest.approx(max(0.0, 1 - mean / target))
     assert rows["MountainCarContinuous-v0"]["target"] is None
+
+
+def test_a_wrong_dimension_in_the_env_table_is_one_line_and_exit_2(monkeypatch, capsys):
+    import dataclasses
+
+    import envs
+    from replicate.cli import main
+
+    spec = envs.ENV_SPECS["MountainCarContinuous-v0"]
+    wrong = dataclasses.replace(spec, obs_dim=spec.obs_dim + 1)
+    monkeypatch.setitem(envs.ENV_SPECS, "MountainCarContinuous-v0", wrong)
+    assert main(["table1", "--out", "/nonexistent-unused"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "obs_dim=2" in err[0] and "MountainCarContinuous-v0" in err[0]
