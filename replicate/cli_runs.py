@@ -13,7 +13,6 @@ from replicate.cli_options import (
     Command,
     HelpFormatter,
     add_device_argument,
-    positive_int,
 )
 
 
@@ -231,7 +230,7 @@ def _declare_carry(sub: Any) -> None:
     )
     carry.add_argument(
         "--workers",
-        type=positive_int,
+        type=int,
         default=1,
         help="checkpoints packed at once (each rebuilds its replay on a core to check it)",
     )

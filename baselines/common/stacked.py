@@ -248,13 +248,21 @@ class StackedReplay:
         return self.gather(torch.from_numpy(indices).to(self.device))
 
     def state_dict(self) -> dict[str, object]:
-        return {"data": self.data[:, : self.size].cpu().clone(), "position": self.position}
+        # one host copy, filled member by member: each member's rows are contiguous, so a
+        # GPU replay is never copied whole on the device first
+        data = torch.empty(
+            (len(self.data), self.size, self.width), dtype=self.data.dtype, device="cpu"
+        )
+        for k in range(len(self.data)):
+            data[k].copy_(self.data[k, : self.size])
+        return {"data": data, "position": self.position}
 
     def load_state_dict(self, state: dict) -> None:
         n = state["data"].shape[1]
         if n > self.capacity:
             raise ValueError(f"saved buffer holds {n} transitions, capacity is {self.capacity}")
-        self.data[:, :n] = state["data"].to(self.device)
+        for k in range(len(self.data)):  # member by member: no second replay on the device
+            self.data[k, :n].copy_(state["data"][k])
         self.size = n
         self.position = int(state["position"])
 
