@@ -353,21 +353,19 @@ def declaration_version(path: Path = DEFAULT_DECLARATION) -> Version:
     """The last commit that changed ``path`` and its date; no commit where git is missing,
     the file is untracked, or it has uncommitted changes (then it is "uncommitted")."""
     path = Path(path).resolve()
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args, "--", path.name],
+            cwd=path.parent,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+
     try:
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", path.name],
-            cwd=path.parent,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        logged = subprocess.run(
-            ["git", "log", "-1", "--format=%H %aI", "--", path.name],
-            cwd=path.parent,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.split()
+        dirty = git("status", "--porcelain").strip()
+        logged = git("log", "-1", "--format=%H %aI").split()
     except (OSError, subprocess.CalledProcessError):
         return Version(None, None)
     if dirty or len(logged) != 2:

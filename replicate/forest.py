@@ -51,6 +51,14 @@ def _limits(check: dict[str, Any]) -> tuple[float, float]:
     return low - pad, high + pad
 
 
+def _state_label(
+    fig: plt.Figure, at: tuple[float, float], check: dict[str, Any], color: str
+) -> None:
+    """A row's state, right-aligned before its plot."""
+    words = _state_words(check["verdict"])
+    fig.text(*at, words, fontsize=9, color=color, va="center", ha="right")
+
+
 def _state_words(state: str) -> str:
     return "not testable" if state.startswith("not testable") else state
 
@@ -91,19 +99,13 @@ def forest_png(claim: dict[str, Any]) -> bytes | None:
             y -= row_h
             ax = fig.add_axes((label_share, y + row_h * 0.18, 0.98 - label_share, row_h * 0.64))
             fig.text(0.02, y + row_h * 0.45, _short(check["what"]), fontsize=8.5, va="center")
+            state_at = (label_share - 0.012, y + row_h * 0.45)
+
             if check["estimate"] is None or not np.isfinite(check["estimate"]):
                 ax.axis("off")  # nothing measured: say why in the row
                 why = textwrap.fill(check.get("decide_short") or "", 90)
                 ax.text(0, 0.5, why, fontsize=7.5, va="center", transform=ax.transAxes)
-                fig.text(
-                    label_share - 0.012,
-                    y + row_h * 0.45,
-                    _state_words(check["verdict"]),
-                    fontsize=9,
-                    color=FADED,
-                    va="center",
-                    ha="right",
-                )
+                _state_label(fig, state_at, check, FADED)
                 continue
             low, high = _limits(check)
             ax.set_xlim(low, high)
@@ -127,15 +129,7 @@ def forest_png(claim: dict[str, Any]) -> bytes | None:
                 ax.plot([check["low"], check["high"]], [0, 0], color=color, lw=2.4)
             if estimate is not None and np.isfinite(estimate):
                 ax.plot([estimate], [0], "o", color=color, ms=6.5)
-            fig.text(
-                label_share - 0.012,
-                y + row_h * 0.45,
-                _state_words(check["verdict"]),
-                fontsize=9,
-                color=color,
-                va="center",
-                ha="right",
-            )
+            _state_label(fig, state_at, check, color)
     return png_bytes(fig)
 
 
