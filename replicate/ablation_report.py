@@ -226,7 +226,6 @@ def write_ablation_report(
     out_dir: Path,
     t2_rule: dict[str, Any] | None = None,
 ) -> Path:
-    from replicate import provenance
     from replicate.report import mujoco_threats, write_report
 
     def estimate(values: list[float]) -> dict[str, Any]:
@@ -280,10 +279,8 @@ def write_ablation_report(
         "failed": failed,
         "always": ALWAYS,
         "sac_runs": [r.path.name for r in sac_runs],
-        "revisions": sorted(
-            {r.provenance["git_revision"] for c in cells for r in c.runs}
-            | {provenance.git_revision()}
-        ),
+        # the runs' revisions alone: the revision that wrote the page is not one of them
+        "revisions": sorted({r.provenance["git_revision"] for c in cells for r in c.runs}),
         "t2_rule": t2_rule,
         "rule_in_force": drl_eg_settings.MUJOCO_T2_RULE,
         # under every T2 of the sweep, so no single guided share stands for it
