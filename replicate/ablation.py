@@ -58,6 +58,15 @@ T2_RULE_CRITERION = (
 REPORT_SEED = 20_260_102
 
 
+def sweep_study_name(
+    profile: str, env_id: str, n_seeds: int, grid_t2: list[float], grid_sigma: list[float]
+) -> str:
+    """The optuna study of a sweep: one per grid, since optuna fixes a parameter's choices
+    within a study; the same name whether the sweep trains or its report is rebuilt."""
+    grid_id = hashlib.sha256(json.dumps([grid_t2, grid_sigma]).encode()).hexdigest()[:8]
+    return f"ablate-threshold-{profile}-{env_id}-s{n_seeds}-{grid_id}"
+
+
 def t2_rule_gains(store: Path, profile: str = "reduced") -> dict[str, dict[str, list[float]]]:
     """For each setting of ``T2_RULE_SETTINGS`` and each MuJoCo ablation env, the normalised
     area-under-the-curve gains of DRL-EG over SAC per seed (``T2_RULE_CRITERION``), from
@@ -233,9 +242,7 @@ def run_threshold_ablation(
         return float(np.mean([r.final_return for r in outcome.runs]))
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    # one study per grid: optuna fixes a parameter's choices within a study
-    grid_id = hashlib.sha256(json.dumps([grid_t2, grid_sigma]).encode()).hexdigest()[:8]
-    study_name = f"ablate-threshold-{profile}-{env_id}-s{n_seeds}-{grid_id}"
+    study_name = sweep_study_name(profile, env_id, n_seeds, grid_t2, grid_sigma)
     # Every trial is enqueued with its grid point, so the sampler never chooses (optuna's
     # grid sampler would count failed or interrupted trials as visited, and stop the study).
     study = optuna.create_study(
@@ -351,7 +358,9 @@ def rebuild_threshold_ablation(
         sac_outcome,
         chosen,
         env_id,
-        f"ablate-threshold-{profile}-{env_id}-s{n_seeds}",
+        sweep_study_name(
+            profile, env_id, n_seeds, sorted({t for t, _ in points}), sorted({s for _, s in points})
+        ),
         storage,
         [],
         out_dir,

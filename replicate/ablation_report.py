@@ -294,6 +294,7 @@ def write_ablation_report(
         "zero_threshold_equals_sac": context["zero_check"],
         "sac_final_mean": sac_final,
         "sac_runs": context["sac_runs"],
+        "study_name": study_name,
         "run_ids": [run for row in rows for run in row["runs"]] + context["sac_runs"],
         "failed": [{"run_id": i, "reason": why} for i, why in failed],
         "t2_rule": t2_rule,

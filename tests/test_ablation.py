@@ -47,6 +47,14 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
     assert main(args) == 0  # the study and the store hold everything: nothing is trained
     assert "training" not in capsys.readouterr().err
     assert json.loads((out / "summary.json").read_text())["rows"] == summary["rows"]
+    # rebuilt from the store alone, the report names the study the sweep trained in
+    from replicate.ablation import rebuild_threshold_ablation
+
+    rebuilt = rebuild_threshold_ablation(
+        "smoke", store, out_dir=tmp_path / "rebuilt", env_id="MountainCarContinuous-v0"
+    )
+    again = json.loads((rebuilt.parent / "summary.json").read_text())
+    assert again["study_name"] == summary["study_name"]
 
 
 def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
