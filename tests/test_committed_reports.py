@@ -16,11 +16,26 @@ STORE = ROOT / "runs"
 PREDATE_THE_STORE: set[str] = set()
 
 
+def _tracked() -> set[Path]:
+    """The files under reports/ that git tracks (a report written into the tree by a user's
+    command is not a committed one); every file there outside a git checkout."""
+    import subprocess
+
+    try:
+        listed = subprocess.run(
+            ["git", "ls-files", "reports"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.splitlines()
+    except (OSError, subprocess.CalledProcessError):
+        return set((ROOT / "reports").rglob("*"))
+    return {ROOT / name for name in listed}
+
+
 def _committed() -> list[Path]:
+    tracked = _tracked()
     return sorted(
         p.parent
         for p in (ROOT / "reports").rglob("summary.json")
-        if "smoke" not in p.parts and "bench" not in p.parts
+        if "smoke" not in p.parts and "bench" not in p.parts and p in tracked
     )
 
 
