@@ -71,19 +71,23 @@ def add_time_limit_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-DEVICE_HELP = (
-    "where algorithms with a GPU path (the SAC family: SAC, twin-Q SAC, DRL-EG, "
-    "IBRL, JSRL, RLPD) train: auto takes the GPU when torch sees one; cuda fails "
-    "without one. The others train on CPU. Curves are reproducible bit for bit on "
-    "CPU only"
-)
+def device_help() -> str:
+    """The --device help, naming the registered algorithms that have a GPU path."""
+    from baselines.registry import algorithms
+
+    gpu = sorted(name for name, algorithm in algorithms().items() if algorithm.gpu)
+    return (
+        f"where algorithms with a GPU path ({', '.join(gpu)}) train: auto takes the GPU "
+        "when torch sees one; cuda fails without one. The others train on CPU. Curves are "
+        "reproducible bit for bit on CPU only"
+    )
 
 
 def add_device_argument(parser: argparse.ArgumentParser, grid: bool = False) -> None:
     from baselines.registry import batchable_algorithms
 
     parser.add_argument(
-        "--device", default="auto", choices=["auto", "cpu", "cuda"], help=DEVICE_HELP
+        "--device", default="auto", choices=["auto", "cpu", "cuda"], help=device_help()
     )
     if grid:
         parser.add_argument(
