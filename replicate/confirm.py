@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ from replicate.stats import (
     chance_to_decide,
     seeds_to_decide,
 )
-from replicate.verdicts import MOST_SEEDS, claim_verdict, part_state
+from replicate.verdicts import MOST_SEEDS, claim_verdict, part_state, scaled_spread
 
 SIGMA_UPPER = 0.80  # the spread assumed: sigma's one-sided upper confidence limit at this level
 CPU_PROCESSES = 2  # costs are stated for a 2-core CPU machine, one process per core
@@ -159,13 +159,6 @@ def sigma_upper_factor(df: float, level: float = SIGMA_UPPER) -> float:
     if not np.isfinite(df) or df <= 0:
         return float("nan")
     return float(np.sqrt(df / stats.chi2.ppf(1 - level, df)))
-
-
-def _scaled(estimate: MeanEstimate, factor: float) -> MeanEstimate:
-    variances = estimate.variances
-    if variances is not None:
-        variances = (variances[0] * factor**2, variances[1] * factor**2)
-    return replace(estimate, se=estimate.se * factor, variances=variances)
 
 
 def route_words(spec: CheckSpec, outcome: str) -> str:
@@ -308,7 +301,7 @@ def plan_check(
     factor = sigma_upper_factor(est.df)
     if not np.isfinite(factor):
         return "its spread has no degrees of freedom"
-    assumed = _scaled(est, factor)
+    assumed = scaled_spread(est, factor)
     confidence = declaration.confidence
     needs = {
         o: seeds_to_decide(assumed, [d], confidence, DECIDING_CHANCE, MOST_SEEDS)

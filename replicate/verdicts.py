@@ -72,7 +72,8 @@ def sigma_limits(
     )
 
 
-def _scaled(estimate: MeanEstimate, factor: float) -> MeanEstimate:
+def scaled_spread(estimate: MeanEstimate, factor: float) -> MeanEstimate:
+    """``estimate`` with its per-seed spread (and so its standard error) times ``factor``."""
     variances = estimate.variances
     if variances is not None:
         variances = (variances[0] * factor**2, variances[1] * factor**2)
@@ -122,7 +123,7 @@ def what_would_decide(check: Check, family: int) -> tuple[str, str] | None:
     span = []
     for factor in (low_factor, high_factor):
         n = (
-            seeds_to_decide(_scaled(est, factor), [distances], level, limit=MOST_SEEDS)
+            seeds_to_decide(scaled_spread(est, factor), [distances], level, limit=MOST_SEEDS)
             if np.isfinite(factor)
             else None
         )
