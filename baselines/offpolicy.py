@@ -60,7 +60,7 @@ class OffPolicyConfig:
     tau: float = 0.005  # target smoothing coefficient
     learning_starts: int = 1000  # transitions collected by the initial policy before updates
     # uniform-random actions before the policy acts (the SAC authors' code: 1,000 or
-    # 10,000); 0, the default, is kept out of a run's address (replicate/runner.py)
+    # 10,000); 0, the default, is kept out of a run's address (replicate/store/runner.py)
     random_start_steps: int = 0
     gradient_steps: int = 1  # per env step
     torch_threads: int = 1  # one process per core is how the harness schedules training

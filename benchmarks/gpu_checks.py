@@ -50,8 +50,8 @@ def step_agreement(twin_q: bool) -> float:
 
 
 def batch_through_runner(out: Path) -> dict:
-    from replicate.runner import execute_batch, prepare
-    from replicate.spec import RunSpec
+    from replicate.store.runner import execute_batch, prepare
+    from replicate.store.spec import RunSpec
 
     store = Path(tempfile.mkdtemp())
     hyper = {"learning_starts": 200}

@@ -1,3 +1,3 @@
-from replicate.cli import main
+from replicate.cli.main import main
 
 raise SystemExit(main())

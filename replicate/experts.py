@@ -25,17 +25,17 @@ from baselines.common.checkpoint import TimeLimitReached, save_checkpoint
 from baselines.common.device import resolve_device
 from baselines.common.networks import TanhGaussianPolicy
 from envs import env_spec, make_env
-from replicate import provenance
+from replicate.store import provenance
 from replicate.errors import HarnessError
-from replicate.run_recorder import read_segments
-from replicate.runner import (
+from replicate.store.run_recorder import read_segments
+from replicate.store.runner import (
     BEST_POLICY_FILE,
     PreparedRun,
     execute,
     execute_batch,
     prepare,
 )
-from replicate.spec import RunSpec
+from replicate.store.spec import RunSpec
 
 EXPERT_DATA_DIR = "data/experts"
 EXPERT_ALGOS = ("sac", "sac-twin-q")

@@ -10,7 +10,7 @@ import pytest  # noqa: E402
 @pytest.fixture(scope="session")
 def smoke_fig3(tmp_path_factory):
     """The smoke profile's Fig. 3, trained once per session: (store, report directory)."""
-    from replicate.cli import main
+    from replicate.cli.main import main
 
     root = tmp_path_factory.mktemp("smoke_fig3")
     store, out = root / "runs", root / "report"

@@ -5,9 +5,9 @@ import numpy as np
 import optuna
 import pandas as pd
 
-from replicate.ablation_grid import area_under_curve
-from replicate.cli import main
-from replicate.runner import Run
+from replicate.figures.ablation_grid import area_under_curve
+from replicate.cli.main import main
+from replicate.store.runner import Run
 
 
 def test_area_under_curve_hand_computed(tmp_path):
@@ -48,7 +48,7 @@ def test_smoke_sweep_checks_zero_threshold_against_sac_and_resumes(tmp_path, cap
     assert "training" not in capsys.readouterr().err
     assert json.loads((out / "summary.json").read_text())["rows"] == summary["rows"]
     # rebuilt from the store alone, the report names the study the sweep trained in
-    from replicate.ablation import rebuild_threshold_ablation
+    from replicate.figures.ablation import rebuild_threshold_ablation
 
     rebuilt = rebuild_threshold_ablation(
         "smoke", store, out_dir=tmp_path / "rebuilt", env_id="MountainCarContinuous-v0"
@@ -90,9 +90,9 @@ def test_a_dry_run_lists_each_sweep_point_and_touches_nothing(tmp_path, capsys):
 
 
 def test_a_plan_tells_points_apart_whatever_order_their_runs_come_in(tmp_path, capsys):
-    from replicate.planning import print_plan
-    from replicate.runner import prepare
-    from replicate.spec import RunSpec
+    from replicate.grids.planning import print_plan
+    from replicate.store.runner import prepare
+    from replicate.store.spec import RunSpec
 
     default = prepare(RunSpec("drl-eg", "MountainCarContinuous-v0", 0, 400, 200, 1, {}))
     point = prepare(
@@ -105,7 +105,7 @@ def test_a_plan_tells_points_apart_whatever_order_their_runs_come_in(tmp_path, c
 
 
 def test_with_batch_the_whole_sweep_trains_as_one_batch_and_t2_zero_still_equals_sac(tmp_path):
-    from replicate.runner import load_run
+    from replicate.store.runner import load_run
 
     store, out = tmp_path / "runs", tmp_path / "report"
     assert (
@@ -187,7 +187,11 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 ):
     import dataclasses
 
-    from replicate import ablation, ablation_grid, profiles
+    from replicate.figures import ablation
+
+    from replicate.figures import ablation_grid
+
+    from replicate.grids import profiles
 
     env_id = "Walker2d-v5"
     smoke = profiles.PROFILES["smoke"]
@@ -266,8 +270,8 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 def test_the_t2_rule_is_the_largest_mean_gain_and_only_once_every_cell_is_in():
     import numpy as np
 
-    from replicate.ablation import choose_t2_rule
-    from replicate.drl_eg_settings import T2_RULE_SETTINGS
+    from replicate.figures.ablation import choose_t2_rule
+    from replicate.grids.drl_eg_settings import T2_RULE_SETTINGS
 
     envs = ("Ant-v5", "Walker2d-v5")
     gains = {

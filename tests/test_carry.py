@@ -7,10 +7,10 @@ import shutil
 import pytest
 import torch
 
-from replicate import carry
-from replicate.cli import main
-from replicate.runner import execute, execute_batch, prepare
-from replicate.spec import RunSpec
+from replicate.store import carry
+from replicate.cli.main import main
+from replicate.store.runner import execute, execute_batch, prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import TINY
 
 HOPPER = "Hopper-v5"
@@ -143,7 +143,7 @@ def test_a_wrapped_replay_is_not_carried(tmp_path, capsys):
 
 
 def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_path):
-    from replicate.planning import plan_batches
+    from replicate.grids.planning import plan_batches
 
     runs = [prepare(RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY))) for seed in range(4)]
     entry = carry.carry_root(tmp_path) / "batch-x"
@@ -171,7 +171,7 @@ def test_a_carried_batch_is_planned_as_the_batch_it_was_whatever_batch_says(tmp_
 
 
 def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, capsys):
-    from replicate.planning import estimate_minutes, print_plan
+    from replicate.grids.planning import estimate_minutes, print_plan
 
     runs = [prepare(RunSpec("sac", HOPPER, seed, 6000, 3000, 1, dict(TINY))) for seed in range(3)]
     whole = estimate_minutes([runs[:2], runs[2]], tmp_path, workers=1)
@@ -204,7 +204,7 @@ def test_estimates_count_only_the_steps_left_after_the_carried_step(tmp_path, ca
 
 
 def test_a_report_names_the_step_a_missing_run_is_carried_at(tmp_path):
-    from replicate.grids import absent_cells
+    from replicate.grids.train import absent_cells
 
     specs = [RunSpec("sac", HOPPER, seed, 700, 350, 1, dict(TINY)) for seed in (0, 1)]
     entry = carry.carry_root(tmp_path) / "batch-y"
@@ -310,15 +310,15 @@ def test_the_runner_and_the_scheduler_reach_the_carry_only_through_checkpoint_pl
             if isinstance(node, ast.Import)
             for alias in node.names
         }
-        assert not {i for i in imported if i.startswith("replicate.carry")}, name
+        assert not {i for i in imported if i.startswith("replicate.store.carry")}, name
 
 
 def test_a_checkpoint_place_is_asked_before_a_batch_trains_and_told_when_it_lands(
     tmp_path, monkeypatch
 ):
-    from replicate import checkpoint_places
-    from replicate.checkpoint_places import KeptCheckpoint
-    from replicate.planning import estimate_minutes
+    from replicate.store import checkpoint_places
+    from replicate.store.checkpoint_places import KeptCheckpoint
+    from replicate.grids.planning import estimate_minutes
 
     class Place:
         def __init__(self):

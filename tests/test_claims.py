@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from replicate.checks import Check, Group, decide
-from replicate.claims import judge_claim, judge_claims
-from replicate.declaration import DeclarationError, load_declaration
-from replicate.measures import final_returns, instabilities, instability, late_window
+from replicate.claims.checks import Check, Group, decide
+from replicate.claims.judge import judge_claim, judge_claims
+from replicate.claims.declaration import DeclarationError, load_declaration
+from replicate.claims.measures import final_returns, instabilities, instability, late_window
 from replicate.stats import t_mean
-from replicate.verdicts import claim_verdict, part_state, what_would_decide
+from replicate.claims.verdicts import claim_verdict, part_state, what_would_decide
 
 MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = (
     "MountainCarContinuous-v0",
@@ -209,8 +209,8 @@ def test_a_malformed_declaration_names_its_claim_and_field(tmp_path, edit, messa
 
 
 def test_a_second_paper_declared_the_same_way_judges_smoke_runs(smoke_fig3):
-    from replicate.groups import claim_groups
-    from replicate.store import completed_runs
+    from replicate.claims.groups import claim_groups
+    from replicate.store.runs import completed_runs
 
     store, _ = smoke_fig3
     declaration = load_declaration(Path(__file__).parent / "data" / "two_claims.toml")

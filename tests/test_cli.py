@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from replicate.cli import main
+from replicate.cli.main import main
 from replicate.demos import default_demo_path
 
 MC = "MountainCarContinuous-v0"
@@ -205,9 +205,9 @@ def test_listing_commands(capsys):
 
 
 def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeypatch):
-    from replicate.cli import default_store
-    from replicate.cli_options import PROFILE_NAMES
-    from replicate.profiles import PROFILES
+    from replicate.cli.main import default_store
+    from replicate.grids.options import PROFILE_NAMES
+    from replicate.grids.profiles import PROFILES
 
     assert PROFILE_NAMES == tuple(PROFILES)
     monkeypatch.delenv("REPLICATE_STORE", raising=False)
@@ -231,7 +231,7 @@ def test_the_command_line_knows_every_profile_and_keeps_smoke_runs_apart(monkeyp
     ],
 )
 def test_help_describes_every_profile_and_states_each_default_once(command, capsys, monkeypatch):
-    from replicate.profiles import PROFILES
+    from replicate.grids.profiles import PROFILES
 
     monkeypatch.setenv("COLUMNS", "100")
     with pytest.raises(SystemExit):
@@ -248,7 +248,8 @@ def test_help_describes_every_profile_and_states_each_default_once(command, caps
 
 
 def test_expert_without_env_trains_every_expert_env_in_turn(monkeypatch):
-    from replicate import cli, cli_runs
+    from replicate.cli import main as cli
+    from replicate.cli import runs as cli_runs
     from replicate.experts import EXPERT_ENVS
 
     seen = []

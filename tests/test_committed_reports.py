@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from replicate.report import summary_run_ids
+from replicate.reports.pages import summary_run_ids
 
 ROOT = Path(__file__).resolve().parents[1]
 STORE = ROOT / "runs"
@@ -71,7 +71,7 @@ def test_committed_reports_and_runs_name_no_directory_of_the_machine_that_made_t
     ids=lambda p: p.relative_to(ROOT / "reports").as_posix(),
 )
 def test_a_committed_report_rebuilds_from_the_committed_runs(report, tmp_path):
-    from replicate.figure_registry import figures
+    from replicate.figures.registry import figures
 
     committed = json.loads((report / "summary.json").read_text())
     path = figures()[report.name].rebuild(committed["profile"], STORE, tmp_path, None)
@@ -90,7 +90,7 @@ def _no_constants(name: str):
 def test_summaries_are_strict_json():
     import numpy as np
 
-    from replicate.report import summary_bytes
+    from replicate.reports.pages import summary_bytes
 
     written = summary_bytes(
         {
@@ -109,7 +109,7 @@ def test_summaries_are_strict_json():
 
 
 def test_reduced_fig3_shows_no_mujoco_drl_eg_before_the_t2_rule():
-    from replicate import drl_eg_settings
+    from replicate.grids import drl_eg_settings
 
     if drl_eg_settings.MUJOCO_T2_RULE is not None:
         pytest.skip("the rule is set")
@@ -128,8 +128,8 @@ def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
     MuJoCo)."""
     import numpy as np
 
-    from replicate import drl_eg_settings
-    from replicate.ablation import RULE_PROFILE, choose_t2_rule, t2_rule_gains
+    from replicate.grids import drl_eg_settings
+    from replicate.figures.ablation import RULE_PROFILE, choose_t2_rule, t2_rule_gains
 
     standing = choose_t2_rule(t2_rule_gains(STORE, RULE_PROFILE), np.random.default_rng(0))
     assert drl_eg_settings.MUJOCO_T2_RULE == standing["choice"], standing["leader"]

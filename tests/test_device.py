@@ -16,9 +16,9 @@ from baselines.common.device import DeviceUnavailableError, resolve_device, work
 from baselines.common.stacked import StackedReplay
 from baselines.sac import SACAgent, SACConfig
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
-from replicate.cli import main
+from replicate.cli.main import main
 from replicate.errors import HarnessError
-from replicate.runner import (
+from replicate.store.runner import (
     CHECKPOINT_FILE,
     CURVE_COLUMNS,
     batch_id,
@@ -26,7 +26,7 @@ from replicate.runner import (
     partial_directory,
     prepare,
 )
-from replicate.spec import RunSpec
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

@@ -296,7 +296,7 @@ def test_the_comparisons_are_the_summarys():
 
 def test_the_experts_table_is_the_demonstrations_record():
     from replicate.demos import default_demo_path, load_demos
-    from replicate.table1 import EXPERT_TARGETS
+    from replicate.figures.table1 import EXPERT_TARGETS
 
     _, body = table_rows((DOCS / "experts.md").read_text(), "| expert |")
     assert len(body) == 7

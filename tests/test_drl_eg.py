@@ -85,7 +85,7 @@ def test_demo_state_spacing_is_the_median_nearest_neighbour_distance():
 
 def test_envs_without_a_chosen_t2_take_it_from_their_demonstrations(monkeypatch, tmp_path):
     from replicate import demos as demos_module
-    from replicate import drl_eg_settings
+    from replicate.grids import drl_eg_settings
 
     assert (
         drl_eg_settings.drl_eg_env_defaults(MOUNTAINCAR)

@@ -5,7 +5,7 @@ import torch
 from replicate import experts
 from replicate.demos import load_demos, make_demos, save_demos
 from replicate.errors import DemoError, HarnessError
-from replicate.store import completed_runs
+from replicate.store.runs import completed_runs
 
 ENV = "Hopper-v5"
 

@@ -5,9 +5,9 @@ import re
 
 import numpy as np
 
-from replicate.cli import main
-from replicate.drl_eg_settings import DRL_EG_ENV_DEFAULTS
-from replicate.fig3 import FIG3_ALGORITHMS
+from replicate.cli.main import main
+from replicate.grids.drl_eg_settings import DRL_EG_ENV_DEFAULTS
+from replicate.figures.fig3 import FIG3_ALGORITHMS
 
 
 def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
@@ -88,10 +88,10 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
 
 
 def test_published_sac_sits_beside_ours_at_the_same_steps():
-    from replicate.checks import Group
-    from replicate.fig3 import efficiency_rows
-    from replicate.published import published_points
-    from replicate.report import published_rows
+    from replicate.claims.checks import Group
+    from replicate.figures.fig3 import efficiency_rows
+    from replicate.claims.published import published_points
+    from replicate.reports.pages import published_rows
 
     steps = np.array([0, 100_000, 200_000])
     curves = np.array([[0, 900, 2000.0], [0, 1100, 2400.0]])
@@ -132,8 +132,8 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
 
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
-    from replicate.fig3 import efficiency_rows, summarise
-    from replicate.groups import claim_groups
+    from replicate.figures.fig3 import efficiency_rows, summarise
+    from replicate.claims.groups import claim_groups
     from tests.test_rlfd import _run
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]
@@ -286,7 +286,7 @@ def test_fig3_trains_only_the_chosen_cells_and_reports_the_whole_grid(
     )
     error = capsys.readouterr().err
     assert "--algos: sax not in this grid" in error and "ppo-bc" in error
-    from replicate import drl_eg_settings
+    from replicate.grids import drl_eg_settings
 
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # as before the rule was fixed
     assert (

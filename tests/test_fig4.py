@@ -1,6 +1,6 @@
 import json
 
-from replicate.cli import main
+from replicate.cli.main import main
 
 
 def test_fig4_pairs_seeds_with_identical_starts(smoke_fig3, tmp_path, capsys):
@@ -97,10 +97,10 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
 
 
 def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path, capsys):
-    from replicate import drl_eg_settings
-    from replicate.drl_eg_settings import waits_for_t2_rule
-    from replicate.fig3 import figure3_grid
-    from replicate.profiles import get_profile
+    from replicate.grids import drl_eg_settings
+    from replicate.grids.drl_eg_settings import waits_for_t2_rule
+    from replicate.figures.fig3 import figure3_grid
+    from replicate.grids.profiles import get_profile
 
     assert drl_eg_settings.MUJOCO_T2_RULE in drl_eg_settings.T2_RULE_SETTINGS  # fixed
     specs, _ = figure3_grid(get_profile("reduced"))
@@ -121,13 +121,15 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     import pytest
 
-    from replicate import ablation_grid, drl_eg_settings
+    from replicate.figures import ablation_grid
+
+    from replicate.grids import drl_eg_settings
     from replicate.errors import HarnessError
-    from replicate.fig3 import figure3_grid
-    from replicate.fig4 import figure4_grid
-    from replicate.profiles import get_profile
-    from replicate.rlfd import rlfd_grid
-    from replicate.runner import prepare
+    from replicate.figures.fig3 import figure3_grid
+    from replicate.figures.fig4 import figure4_grid
+    from replicate.grids.profiles import get_profile
+    from replicate.figures.rlfd import rlfd_grid
+    from replicate.store.runner import prepare
 
     reduced = get_profile("reduced")
     grid = ablation_grid.default_thresholds("reduced", "Ant-v5")  # 1x, 4x, 16x, 64x, always
@@ -159,10 +161,10 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from types import SimpleNamespace
 
-    from replicate import drl_eg_settings
-    from replicate.drl_eg_settings import guidance_settings
-    from replicate.fig3 import figure3_grid
-    from replicate.profiles import get_profile
+    from replicate.grids import drl_eg_settings
+    from replicate.grids.drl_eg_settings import guidance_settings
+    from replicate.figures.fig3 import figure3_grid
+    from replicate.grids.profiles import get_profile
 
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # before the rule, then with it
     specs = [s for s in figure3_grid(get_profile("reduced"))[0] if s.env_id == "Ant-v5"]
@@ -200,7 +202,7 @@ def test_guided_share_weighs_each_points_fraction_by_the_steps_it_covers(tmp_pat
 
     import pandas as pd
 
-    from replicate.runner import Run
+    from replicate.store.runner import Run
 
     curve = pd.DataFrame({"step": [0, 100, 200, 250], "guided_fraction": [math.nan, 0.5, 0.0, 1.0]})
     assert Run(tmp_path, {}, curve, {}).guided_share == (50 + 0 + 50) / 250
@@ -212,9 +214,9 @@ def test_an_ant_fig4_below_the_papers_budget_says_what_it_can_show(tmp_path):
     import numpy as np
     import pandas as pd
 
-    from replicate.fig4 import write_figure4_report
-    from replicate.profiles import GridOutcome, get_profile
-    from replicate.runner import Run
+    from replicate.figures.fig4 import write_figure4_report
+    from replicate.grids.profiles import GridOutcome, get_profile
+    from replicate.store.runner import Run
 
     def run(algo: str, seed: int, end: float) -> Run:
         curve = pd.DataFrame(

@@ -4,8 +4,8 @@ a store."""
 
 import json
 
-from replicate.figure_registry import figures
-from replicate.frontdoor import write_front_door
+from replicate.figures.registry import figures
+from replicate.reports.frontdoor import write_front_door
 
 
 def test_every_report_is_registered_once():
@@ -47,9 +47,11 @@ def test_the_command_line_takes_each_figures_command_from_the_registry(
 ):
     import argparse
 
-    from replicate import cli, figure_registry
-    from replicate.cli_options import Command
-    from replicate.figure_registry import FigureReport, figure_commands
+    from replicate.cli import main as cli
+
+    from replicate.figures import registry as figure_registry
+    from replicate.grids.options import Command
+    from replicate.figures.registry import FigureReport, figure_commands
 
     names = [command.name for command in figure_commands()]
     assert names == ["fig3", "fig4", "compare-rlfd", "ablate-threshold", "random-start"]

@@ -2,8 +2,8 @@
 
 import matplotlib.pyplot as plt
 
-from replicate.figures import format_steps_axis, panel_order, steps_label
-from replicate.profiles import get_profile
+from replicate.figures.plots import format_steps_axis, panel_order, steps_label
+from replicate.grids.profiles import get_profile
 
 
 def test_steps_label_shortens_thousands_and_millions():
@@ -54,8 +54,14 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
-from replicate import ablation_grid, ablation_report, figures, rlfd  # noqa: E402
-from replicate.figures import (  # noqa: E402
+from replicate.figures import ablation_grid  # noqa: E402
+
+from replicate.figures import ablation_report
+
+from replicate.figures import plots as figures
+
+from replicate.figures import rlfd
+from replicate.figures.plots import (  # noqa: E402
     ALGO_COLORS,
     CurveBand,
     aggregate_png,
@@ -217,7 +223,7 @@ def test_seed_note_names_the_usual_count_and_the_exceptions():
 
 
 def test_summarise_keeps_each_seeds_curve_under_the_band():
-    from replicate.fig3 import summarise
+    from replicate.figures.fig3 import summarise
 
     def run(seed, returns):
         curve = pd.DataFrame({"step": [0, 100, 200], "return_mean": returns})
@@ -259,7 +265,7 @@ def test_published_sac_is_drawn_in_two_groups():
     """The same algorithm as ours (V-network SAC) and modern twin-Q SAC get markers and
     legend entries of their own."""
 
-    from replicate import figures
+    from replicate.figures import plots as figures
 
     labels = []
     real = figures.shared_legend

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from replicate.frontdoor import find_reports, verdict_table, write_front_door
+from replicate.reports.frontdoor import find_reports, verdict_table, write_front_door
 
 ROOT = Path(__file__).resolve().parents[1]
 REPORTS = ROOT / "reports"
@@ -62,7 +62,7 @@ def test_a_missing_torn_or_foreign_summary_marks_that_report_unavailable(reports
 def test_report_command_writes_it_and_exits_0_over_a_torn_summary(
     reports_copy, monkeypatch, capsys
 ):
-    from replicate.cli import main
+    from replicate.cli.main import main
 
     (reports_copy / "rlfd" / "summary.json").write_text("{")
     store = reports_copy.parent / "empty-store"
@@ -76,8 +76,8 @@ def test_report_command_writes_it_and_exits_0_over_a_torn_summary(
 
 
 def test_a_dry_run_leaves_the_front_door_alone(tmp_path, monkeypatch):
-    import replicate.frontdoor as frontdoor
-    from replicate.cli import main
+    import replicate.reports.frontdoor as frontdoor
+    from replicate.cli.main import main
 
     written = []
     monkeypatch.setattr(frontdoor, "write_front_door", lambda root: written.append(root))

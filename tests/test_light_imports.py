@@ -9,7 +9,7 @@ import subprocess, sys
 calls = []
 real = subprocess.run
 subprocess.run = lambda *a, **k: calls.append(a) or real(*a, **k)
-import replicate.store, replicate.report, replicate.frontdoor
+import replicate.store.runs, replicate.reports.pages, replicate.reports.frontdoor
 heavy = sorted(m for m in sys.modules if m == "torch" or m.startswith("baselines"))
 print(repr((heavy, calls)))
 """

@@ -12,9 +12,9 @@ from pathlib import Path
 
 from replicate.demos import DemoError
 from replicate.errors import HarnessError
-from replicate.experiments import GridOptions, run_grid
-from replicate.runner import RunLockedError, prepare
-from replicate.spec import RunSpec
+from replicate.grids.experiments import GridOptions, run_grid
+from replicate.store.runner import RunLockedError, prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 
@@ -69,7 +69,7 @@ def _alive(pid: int) -> bool:
 
 def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
     script = textwrap.dedent(f"""
-        from replicate.experiments import GridOptions, run_grid
+        from replicate.grids.experiments import GridOptions, run_grid
         from tests.test_local_executor import tiny_spec
         run_grid([tiny_spec(0, steps=200_000)], {str(tmp_path)!r},
                  GridOptions(workers=1, checkpoint_interval=200))
@@ -106,7 +106,7 @@ def test_workers_stop_when_the_figure_process_is_killed(tmp_path):
 def test_estimates_take_a_batch_process_speed_as_its_members_summed(tmp_path):
     import json
 
-    from replicate.planning import estimate_minutes
+    from replicate.grids.planning import estimate_minutes
 
     def stored(
         name: str, rate: float, size: int | None, algo: str = "sac", device: str = "cpu"

@@ -31,8 +31,8 @@ from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from envs import make_env
 from envs.vector import EnvBatch
 from replicate.demos import default_demo_path, load_demos
-from replicate.runner import execute_batch, is_complete, prepare
-from replicate.spec import RunSpec
+from replicate.store.runner import execute_batch, is_complete, prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY, assert_members_agree, curve_signature, train_tiny
 
 HOPPER, OBS, ACT, ROWS, SEEDS = "Hopper-v5", 11, 3, 32, (0, 1, 2)
@@ -316,8 +316,8 @@ def test_runner_reports_a_failed_member_and_keeps_the_others(tmp_path, monkeypat
 KILL_SCRIPT = """
 import sys
 from pathlib import Path
-from replicate.runner import execute, execute_batch, prepare
-from replicate.spec import RunSpec
+from replicate.store.runner import execute, execute_batch, prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 if __name__ == "__main__":
@@ -398,7 +398,7 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
         assert needle in result.stderr and len(result.stderr.strip().splitlines()) == 1
     assert not store.exists() or not any(store.iterdir())
     from replicate.errors import HarnessError
-    from replicate.planning import resolve_batch
+    from replicate.grids.planning import resolve_batch
 
     ppo_only = [prepare(RunSpec("ppo", MOUNTAINCAR, 0, 400, 200, 1, {}))]
     with pytest.raises(HarnessError, match="no batched trainer for ppo"):
@@ -406,7 +406,7 @@ def test_grid_batch_errors_are_one_line_and_write_nothing(tmp_path):
 
 
 def test_plan_batches_groups_by_everything_but_the_seed_and_t2():
-    from replicate.planning import plan_batches
+    from replicate.grids.planning import plan_batches
 
     specs = (
         _specs(seeds=(0, 1, 2))

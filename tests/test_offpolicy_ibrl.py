@@ -10,8 +10,8 @@ import torch
 from baselines.common.stacked import critic_pairs
 from baselines.ibrl import IBRLAgent, IBRLConfig, ImitationPolicy
 from replicate.demos import default_demo_path, load_demos
-from replicate.runner import execute, execute_batch, prepare
-from replicate.spec import RunSpec
+from replicate.store.runner import execute, execute_batch, prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import (
     MOUNTAINCAR,
     TINY,

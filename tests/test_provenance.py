@@ -3,7 +3,7 @@ reports."""
 
 import subprocess
 
-from replicate.provenance import revision_at
+from replicate.store.provenance import revision_at
 
 
 def _git(where, *args):

@@ -1,6 +1,6 @@
 """Published SAC references in two groups, and the words that place our SAC among them."""
 
-from replicate.published import MODERN, SAME_ALGORITHM, compare_with_published, published_sac
+from replicate.claims.published import MODERN, SAME_ALGORITHM, compare_with_published, published_sac
 
 
 def test_every_source_is_in_one_group_with_its_settings():

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from baselines.common.random_start import random_start_action
-from replicate.runner import prepare
-from replicate.spec import RunSpec
+from replicate.store.runner import prepare
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY, batch_curves, train_tiny
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,9 +85,9 @@ def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch)
 
 
 def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
-    from replicate.fig3 import figure3_grid
-    from replicate.profiles import get_profile
-    from replicate.random_start import random_start_grid
+    from replicate.figures.fig3 import figure3_grid
+    from replicate.grids.profiles import get_profile
+    from replicate.figures.random_start import random_start_grid
 
     fig3 = {prepare(s).run_id for s in figure3_grid(get_profile("reduced"))[0] if s.algo == "sac"}
     study = [prepare(s) for s in random_start_grid("reduced")]
@@ -100,7 +100,7 @@ def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
 
 
 def test_envs_limits_what_the_study_trains(capsys, tmp_path):
-    from replicate.cli import main
+    from replicate.cli.main import main
 
     args = ["random-start", "--profile", "reduced", "--store", str(tmp_path), "--dry-run"]
     assert main([*args, "--workers", "1"]) == 0
@@ -113,7 +113,7 @@ def test_envs_limits_what_the_study_trains(capsys, tmp_path):
 
 @pytest.mark.slow
 def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
-    from replicate.cli import main
+    from replicate.cli.main import main
 
     store, out = tmp_path / "runs", tmp_path / "report"
     assert (
@@ -142,7 +142,7 @@ def test_the_study_trains_the_random_starts_and_pairs_them_by_seed(tmp_path):
     }
     assert sorted(r for r, has in recorded.items() if has) == row["random_start_runs"]
     assert len(row["random_start_runs"]) == 3
-    from replicate.random_start import stored_rows
+    from replicate.figures.random_start import stored_rows
 
     (stored,) = stored_rows("smoke", store)  # what the Fig. 3 threats line reads
     assert stored["runs"] == row["runs"] and stored["final"]["value"] == row["final"]["value"]
@@ -155,7 +155,7 @@ def _row(env_id: str, value: float, low: float, high: float, n: int = 3) -> dict
 
 
 def test_the_threats_line_says_what_the_study_measured():
-    from replicate.random_start import command, start_threat
+    from replicate.figures.random_start import command, start_threat
 
     unmeasured = start_threat("reduced", [])
     assert "initial policy" in unmeasured and command("reduced") in unmeasured
@@ -177,8 +177,8 @@ def test_the_threats_line_says_what_the_study_measured():
 
 
 def test_the_fig3_threats_end_with_the_start_line():
-    from replicate.report import threats_to_validity
-    from replicate.store import load_run
+    from replicate.reports.pages import threats_to_validity
+    from replicate.store.runs import load_run
 
     ant = next(p for p in sorted((ROOT / "runs").glob("sac__Ant-v5__*")) if p.is_dir())
     threats = threats_to_validity([load_run(ant)], [], sac_start="how SAC starts")

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from replicate.cli import main
-from replicate.fig3 import FIG3_ALGORITHMS
+from replicate.cli.main import main
+from replicate.figures.fig3 import FIG3_ALGORITHMS
 
 PORT = "6391"
 

@@ -15,10 +15,10 @@ from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 
-from replicate.cli import main
-from replicate.fig3 import rebuild_figure3
-from replicate.figures import png_panels
-from replicate.profiles import get_profile
+from replicate.cli.main import main
+from replicate.figures.fig3 import rebuild_figure3
+from replicate.figures.plots import png_panels
+from replicate.grids.profiles import get_profile
 
 WINDOW_WIDTH = 1400  # a laptop's browser window
 MIN_PANEL_PX = 400  # narrower, and a panel's curves, bands and ticks run together

@@ -4,10 +4,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from replicate.cli import main
+from replicate.cli.main import main
 from replicate.errors import HarnessError
-from replicate.profiles import get_profile
-from replicate.rlfd import (
+from replicate.grids.profiles import get_profile
+from replicate.figures.rlfd import (
     CURVE_FRACTIONS,
     SPARSE_TASKS,
     compare,
@@ -15,7 +15,7 @@ from replicate.rlfd import (
     random_return,
     rlfd_grid,
 )
-from replicate.runner import Run
+from replicate.store.runner import Run
 
 TASK = "MountainCarContinuous-v0"
 DEMO = 95.0
@@ -84,7 +84,7 @@ def test_compare_judges_drl_eg_against_each_method_per_task():
 
 
 def test_each_profile_report_points_to_the_other_profiles_comparisons(tmp_path):
-    from replicate.rlfd import _other_profiles
+    from replicate.figures.rlfd import _other_profiles
 
     for built in ("reports/rlfd", "reports/reduced/rlfd"):  # the paper one was never built
         (tmp_path / built).mkdir(parents=True)
@@ -142,7 +142,7 @@ def test_smoke_comparison_trains_every_method_and_writes_the_report(tmp_path, ca
     assert 'id="smoke-warning"' in html and "data:image/png;base64," in html
     assert 'id="guidance"' in html and [g["t2"] for g in summary["guidance"]] == [[0.05]]
     assert "<code>reports/reduced/rlfd/index.html</code> (not built here)" in html
-    from replicate.rlfd import rebuild_rlfd
+    from replicate.figures.rlfd import rebuild_rlfd
 
     rebuilt = rebuild_rlfd("smoke", store, tmp_path / "again")
     again = json.loads((rebuilt.parent / "summary.json").read_text())

@@ -3,7 +3,7 @@ import re
 import pytest
 
 from envs import ENV_SPECS
-from replicate.cli import main
+from replicate.cli.main import main
 from replicate.demos import default_demo_path, load_demos
 from tests.helpers import MOUNTAINCAR
 
@@ -27,7 +27,7 @@ def test_table1_shows_paper_and_harness_dims_and_the_demonstrations(tmp_path):
 
 
 def test_table1_states_each_mujoco_expert_against_its_target():
-    from replicate.table1 import EXPERT_TARGETS, table1_rows
+    from replicate.figures.table1 import EXPERT_TARGETS, table1_rows
 
     rows = {r["env_id"]: r for r in table1_rows()}
     for env_id, target in EXPERT_TARGETS.items():
@@ -43,7 +43,7 @@ def test_a_wrong_dimension_in_the_env_table_is_one_line_and_exit_2(monkeypatch, 
     import dataclasses
 
     import envs
-    from replicate.cli import main
+    from replicate.cli.main import main
 
     spec = envs.ENV_SPECS["MountainCarContinuous-v0"]
     wrong = dataclasses.replace(spec, obs_dim=spec.obs_dim + 1)

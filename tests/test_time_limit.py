@@ -11,12 +11,12 @@ import pandas as pd
 import pytest
 
 from baselines.common.checkpoint import TimeLimitReached
-from replicate import experiments
-from replicate.cli import main, parse_time_limit
-from replicate.cli_options import TIME_LIMIT_EXIT
+from replicate.grids import experiments
+from replicate.cli.main import main, parse_time_limit
+from replicate.grids.options import TIME_LIMIT_EXIT
 from replicate.errors import HarnessError
-from replicate.run_recorder import EARLIER_SEGMENTS_FILE
-from replicate.runner import (
+from replicate.store.run_recorder import EARLIER_SEGMENTS_FILE
+from replicate.store.runner import (
     CHECKPOINT_FILE,
     SEGMENTS_FILE,
     batch_id,
@@ -25,7 +25,7 @@ from replicate.runner import (
     partial_directory,
     prepare,
 )
-from replicate.spec import RunSpec
+from replicate.store.spec import RunSpec
 from tests.helpers import MOUNTAINCAR, TINY
 
 FIGURE_COMMANDS = ("fig3", "fig4", "ablate-threshold", "compare-rlfd")

@@ -1,0 +1,211 @@
+"""A figure's grid against the run store: the cells chosen to train, the runs stored and
+those absent, the report written from them (never over one that names more runs), and the
+lines a report gives the cells it lacks."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Callable
+
+from replicate.store import checkpoint_places
+from replicate.grids.drl_eg_settings import T2_WAIT_REASON, waits_for_t2_rule
+from replicate.errors import HarnessError
+from replicate.grids.experiments import GridOptions, run_grid
+from replicate.grids.profiles import GridOutcome
+from replicate.store.provenance import portable_path
+from replicate.store.runner import Run, is_complete, load_run, prepare
+from replicate.store.spec import RunSpec
+
+
+def algorithm_overrides(algo: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The profile's overrides that ``algo``'s config has (each takes what it knows)."""
+    from baselines.registry import get_algorithm
+
+    known = {f.name for f in dataclasses.fields(get_algorithm(algo).config_cls)}
+    return {k: v for k, v in overrides.items() if k in known}
+
+
+def without_waiting(
+    specs: list[RunSpec], skipped: list[tuple[str, str, str]], profile: str
+) -> tuple[list[RunSpec], list[tuple[str, str, str]]]:
+    """A grid less its cells that wait for the MuJoCo T2 rule, those listed as skipped: a
+    report never shows them, even where the store holds runs of the same spec (the
+    ablation's 1x point is one)."""
+    waiting = [s for s in specs if waits_for_t2_rule(profile, s.env_id, s.algo)]
+    return (
+        [s for s in specs if s not in waiting],
+        skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting}),
+    )
+
+
+def train_and_report(
+    specs: list[RunSpec],
+    skipped: list[tuple[str, str, str]],
+    profile: str,
+    command: str,
+    store: Path,
+    out_dir: Path,
+    write: Callable[[GridOutcome, Path], Path],
+    algos: list[str] | None = None,
+    envs: list[str] | None = None,
+    options: GridOptions = GridOptions(),
+) -> Path | None:
+    """A figure command: train what its grid lacks (of the ``algos`` x ``envs`` cells when
+    given; cells that wait for the MuJoCo T2 rule never), then ``write(outcome, out_dir)``
+    its report from every run of the grid in the store, never over a report that names more
+    runs (``report.write_unless_fewer``). Returns the report (None: nothing written)."""
+    selected = select_cells(specs, algos, envs)
+    specs, skipped = without_waiting(specs, skipped, profile)
+    chosen = [s for s in selected if s in specs]
+    if (algos or envs) and not chosen:
+        why = "; they wait for the MuJoCo T2 rule" if selected else ""
+        raise HarnessError(
+            f"--algos/--envs: no cell of this grid to train there{why}",
+            "choose other cells (`--dry-run` lists what is missing)",
+        )
+    for env_id, algo, reason in skipped:  # the report lists them all; here the chosen ones
+        if (algos is None or algo in algos) and (envs is None or env_id in envs):
+            print(f"skipped {algo} on {env_id}: {reason}")
+    outcome = train_cells(specs, chosen, store, command, options)
+    if options.dry_run:
+        return None
+    outcome.skipped = skipped + outcome.skipped
+    report = write_saying_why(Path(out_dir), Path(store), lambda out: write(outcome, out))
+    if outcome.failed:
+        where = (
+            f"the report at {report} lists them"
+            if report is not None
+            else f"e.g. {outcome.failed[0][0]}: {outcome.failed[0][1]}"
+        )
+        raise HarnessError(
+            f"{len(outcome.failed)} run(s) failed; {where}",
+            "read the reasons, fix, and run the same command",
+        )
+    return report
+
+
+def write_saying_why(
+    out_dir: Path, store: Path, build: Callable[[Path], Path | None]
+) -> Path | None:
+    """``report.write_unless_fewer``, printing its line when some of the old report's runs
+    were missing; returns the index written (None: nothing written)."""
+    from replicate.reports.pages import write_unless_fewer
+
+    report, note = write_unless_fewer(out_dir, store, build)
+    if note:
+        print(note if report is None else f"{out_dir}: {note}")
+    return report
+
+
+def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
+    """The complete runs of ``specs`` in the store (nothing is trained)."""
+    return stored_and_absent(specs, store)[0]
+
+
+def stored_and_absent(specs: list[RunSpec], store: Path) -> tuple[list[Run], list[RunSpec]]:
+    """The complete runs of ``specs`` in the store (in the order of ``specs``), and the specs
+    whose run is not there yet."""
+    runs, absent = [], []
+    for spec in specs:
+        directory = prepare(spec).directory(store)
+        if is_complete(directory):
+            runs.append(load_run(directory))
+        else:
+            absent.append(spec)
+    return runs, absent
+
+
+def absent_cells(
+    specs: list[RunSpec], command: str, store: Path | None = None
+) -> list[tuple[str, str, str]]:
+    """A report's (env, algo, reason) line per cell for the runs not in the store yet, with
+    the seeds each cell lacks and, for those whose checkpoints are kept elsewhere
+    (``replicate.store.checkpoint_places``: carried, say), where and the step they are kept at."""
+    kept = checkpoint_places.kept(store)
+    carried_at = {run_id: k.step for k in kept for run_id in k.members}
+    kept_where = {run_id: k.where for k in kept for run_id in k.members}
+    seeds: dict[tuple[str, str], list[int]] = {}
+    steps: dict[tuple[str, str], list[tuple[int, int]]] = {}
+    wheres: dict[tuple[str, str], Path] = {}
+    for spec in specs:
+        cell = (spec.env_id, spec.algo)
+        seeds.setdefault(cell, []).append(spec.seed)
+        run_id = prepare(spec).run_id if carried_at else None
+        if run_id in carried_at:
+            steps.setdefault(cell, []).append((spec.seed, carried_at[run_id]))
+            wheres[cell] = kept_where[run_id]
+    lines = []
+    for cell, lacking in seeds.items():
+        one = len(lacking) == 1
+        carried_note = ""
+        if cell in steps:
+            at = ", ".join(f"seed {seed} at step {step:,}" for seed, step in sorted(steps[cell]))
+            where = portable_path(wheres[cell])
+            carried_note = f"; carried unfinished in {where}: {at}"
+        lines.append(
+            (
+                *cell,
+                f"{'seed' if one else 'seeds'} {', '.join(map(str, sorted(lacking)))} "
+                f"not in the store yet{carried_note} (run `{command}` to "
+                f"{'train' if not carried_note else 'train or resume'} "
+                f"{'it' if one else 'them'})",
+            )
+        )
+    return lines
+
+
+def stored_outcome(
+    specs: list[RunSpec],
+    skipped: list[tuple[str, str, str]],
+    profile: str,
+    store: Path,
+    command: str,
+) -> GridOutcome | None:
+    """A grid's outcome from the store alone, for a rebuilt report: its complete runs, the
+    cells that wait for the T2 rule and the runs not there yet listed as skipped; None when
+    the store holds none of its runs."""
+    specs, skipped = without_waiting(specs, skipped, profile)
+    runs, absent = stored_and_absent(specs, store)
+    if not runs:
+        return None
+    return GridOutcome(runs, [], None, skipped + absent_cells(absent, command, store))
+
+
+def select_cells(
+    specs: list[RunSpec], algos: list[str] | None, envs: list[str] | None
+) -> list[RunSpec]:
+    """The specs of a grid whose algorithm is in ``algos`` and env in ``envs`` (None: any);
+    a name the grid does not have is a one-line error that lists the ones it has."""
+    for chosen, field, flag in ((algos, "algo", "--algos"), (envs, "env_id", "--envs")):
+        if chosen is None:
+            continue
+        have = sorted({getattr(s, field) for s in specs})
+        unknown = [name for name in chosen if name not in have]
+        if unknown:
+            raise HarnessError(
+                f"{flag}: {', '.join(unknown)} not in this grid", f"choose from {', '.join(have)}"
+            )
+    return [
+        s
+        for s in specs
+        if (algos is None or s.algo in algos) and (envs is None or s.env_id in envs)
+    ]
+
+
+def train_cells(
+    specs: list[RunSpec],
+    chosen: list[RunSpec],
+    store: Path,
+    command: str,
+    options: GridOptions = GridOptions(),
+) -> GridOutcome:
+    """Train the ``chosen`` part of a grid (what is missing of it); the outcome holds every
+    complete run of the whole grid, and the cells outside ``chosen`` that are still absent
+    are listed, so a report written from it covers the whole grid."""
+    outcome = run_grid(chosen, store, options)
+    if len(chosen) == len(specs) or options.dry_run:
+        return outcome
+    outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
+    outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command, store)
+    return outcome
