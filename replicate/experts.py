@@ -25,8 +25,9 @@ from baselines.common.checkpoint import TimeLimitReached, save_checkpoint
 from baselines.common.device import resolve_device
 from baselines.common.networks import TanhGaussianPolicy
 from envs import env_spec, make_env
+from replicate.demos import RULE_EXPERTS, Demonstrations, rollout_demos
+from replicate.errors import DemoError, HarnessError
 from replicate.store import provenance
-from replicate.errors import HarnessError
 from replicate.store.run_recorder import read_segments
 from replicate.store.runner import (
     BEST_POLICY_FILE,
@@ -334,3 +335,47 @@ class ExpertPolicy:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         obs_t = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
         return self.policy.deterministic(obs_t).squeeze(0).numpy()
+
+
+EXPERT_RETURN_EPISODES = 10  # the expert's return is judged over at least this many episodes
+
+
+def make_demos(env_id: str, n_pairs: int = 1000, seed: int = 0) -> Demonstrations:
+    """Demonstrations for ``env_id`` from the harness's own experts: the paper's rule on
+    MountainCar, elsewhere the committed SAC expert (this module)."""
+    env_spec(env_id)  # unknown ids fail here with the list of known ones
+    command = f"python -m replicate demos --env {env_id} --pairs {n_pairs} --seed {seed}"
+    if env_id in RULE_EXPERTS:
+        rule, description = RULE_EXPERTS[env_id]
+        return rollout_demos(env_id, rule, n_pairs, seed, command, description)
+    if not expert_path(env_id).is_file():
+        raise DemoError(
+            f"no expert is available yet to make demonstrations for {env_id}",
+            "train one with `python -m replicate expert --env ENV` (see "
+            "`nox -s experts`) or pass --demos with your own file",
+        )
+    expert = ExpertPolicy(env_id)
+    meta = expert.metadata
+    description = (
+        f"deterministic policy of the harness's {meta['algo'].upper()} expert for "
+        f"{meta['env_id']} (best evaluation {meta['best_eval_return']:.1f} at step "
+        f"{meta['best_step']:,}; {meta['steps_trained']:,} env steps trained of a "
+        f"{meta['budget_steps']:,}-step budget; published SAC experts train 1M)"
+    )
+    extra = {
+        "expert_algo": meta["algo"],
+        "expert_env_id": meta["env_id"],
+        "expert_steps_trained": meta["steps_trained"],
+        "expert_budget": meta["budget_steps"],
+        "expert_file_command": meta["command"],
+    }
+    return rollout_demos(
+        env_id,
+        expert,
+        n_pairs,
+        seed,
+        command,
+        description,
+        min_episodes=EXPERT_RETURN_EPISODES,
+        extra_metadata=extra,
+    )

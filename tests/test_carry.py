@@ -7,8 +7,8 @@ import shutil
 import pytest
 import torch
 
-from replicate.store import carry
 from replicate.cli.main import main
+from replicate.store import carry
 from replicate.store.runner import execute, execute_batch, prepare
 from replicate.store.spec import RunSpec
 from tests.helpers import TINY
@@ -316,9 +316,9 @@ def test_the_runner_and_the_scheduler_reach_the_carry_only_through_checkpoint_pl
 def test_a_checkpoint_place_is_asked_before_a_batch_trains_and_told_when_it_lands(
     tmp_path, monkeypatch
 ):
+    from replicate.grids.planning import estimate_minutes
     from replicate.store import checkpoint_places
     from replicate.store.checkpoint_places import KeptCheckpoint
-    from replicate.grids.planning import estimate_minutes
 
     class Place:
         def __init__(self):
@@ -337,8 +337,7 @@ def test_a_checkpoint_place_is_asked_before_a_batch_trains_and_told_when_it_land
             pass
 
     place = Place()
-    monkeypatch.setattr(checkpoint_places, "PLACE_MODULES", ())
-    monkeypatch.setattr(checkpoint_places, "_PLACES", [place])
+    monkeypatch.setattr(checkpoint_places, "places", lambda: [place])
     assert checkpoint_places.resumable_steps(tmp_path, {"run-a", "run-b", "run-c"}) == {
         "run-a": 300,
         "run-b": 300,

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from replicate.claims.checks import Check, Group, decide
-from replicate.claims.judge import judge_claim, judge_claims
 from replicate.claims.declaration import DeclarationError, load_declaration
-from replicate.claims.measures import final_returns, instabilities, instability, late_window
-from replicate.stats import t_mean
+from replicate.claims.judge import judge_claim, judge_claims
 from replicate.claims.verdicts import claim_verdict, part_state, what_would_decide
+from replicate.stats import t_mean
+from replicate.store.measures import final_returns, instabilities, instability, late_window
 
 MOUNTAINCAR, HOPPER, WALKER, CHEETAH, ANT = (
     "MountainCarContinuous-v0",

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from replicate.cli.main import main
-from replicate.claims.confirm import plan_checks, used_seeds
 from replicate.claims.confirm_judge import confirmatory_results, judge_plan, read_plan
-from replicate.claims.confirm_register import check_registered, plan_specs, run_ids, run_starts
 from replicate.claims.declaration import load_declaration
+from replicate.cli.main import main
+from replicate.confirm.plan import plan_checks, used_seeds
+from replicate.confirm.register import check_registered, plan_specs, run_ids, run_starts
 from replicate.errors import HarnessError
 from replicate.grids.profiles import get_profile
 
@@ -35,9 +35,9 @@ def declaration(store, tmp_path):
     """Two claims over the smoke runs whose checks stay open: each threshold 12 standard
     errors below the observed estimate (with 2 seeds, 1 degree of freedom, a one-sided test
     at 2.5% needs 12.7), and one check that fails, so an outcome can change a verdict."""
+    from replicate.claims.groups import claim_groups
     from replicate.figures.fig3 import figure3_grid
     from replicate.grids.train import stored_runs
-    from replicate.claims.groups import claim_groups
     from replicate.stats import paired_mean_difference, t_mean
 
     groups = claim_groups(stored_runs(figure3_grid(SMOKE)[0], store))
@@ -264,8 +264,8 @@ def test_a_plans_runs_are_the_grids_runs_at_other_seeds(store):
 
 def test_reports_that_read_a_cells_runs_leave_a_plans_seeds_out(store):
     from replicate.figures.fig3 import figure3_grid
-    from replicate.grids.train import stored_runs
     from replicate.figures.guided_share import guided_runs
+    from replicate.grids.train import stored_runs
 
     source = next(store.glob(f"drl-eg__{MC}__s0__*"))
     copy = store / source.name.replace("__s0__", "__s1000__")

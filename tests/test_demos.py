@@ -8,11 +8,11 @@ from replicate.demos import (
     Demonstrations,
     default_demo_path,
     load_demos,
-    make_demos,
     mountaincar_rule,
     save_demos,
 )
 from replicate.errors import DemoError
+from replicate.experts import make_demos
 
 MC = "MountainCarContinuous-v0"
 

@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from replicate import experts
-from replicate.demos import load_demos, make_demos, save_demos
+from replicate.demos import load_demos, save_demos
 from replicate.errors import DemoError, HarnessError
 from replicate.store.runs import completed_runs
 
@@ -43,7 +43,7 @@ def test_expert_trains_exports_and_makes_valid_demonstrations(expert_dir):
         if p.is_floating_point()
     )
 
-    demos = make_demos(ENV, n_pairs=50, seed=0)
+    demos = experts.make_demos(ENV, n_pairs=50, seed=0)
     assert demos.metadata["expert_episodes"] >= 10
     assert demos.metadata["expert_algo"] == experts.expert_algo_for(ENV)
     first_action = policy(demos.observations[0])
@@ -63,7 +63,7 @@ def test_sparse_task_takes_the_dense_twins_expert(expert_dir):
 
 def test_missing_expert_is_a_clear_error(expert_dir):
     with pytest.raises(DemoError, match="no expert is available yet"):
-        make_demos("Walker2d-v5")
+        experts.make_demos("Walker2d-v5")
 
 
 def test_twin_q_expert_exports_a_policy_the_demonstrations_can_use(expert_dir):

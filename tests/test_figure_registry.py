@@ -1,10 +1,10 @@
 """Reports as plug-ins: every report is registered once; `nox -s report` and the front door
-loop over the registry; the guided-share figure, added by the README's recipe, rebuilds from
+loop over the registry; the guided-share figure, added as a plug-in, rebuilds from
 a store."""
 
 import json
 
-from replicate.figures.registry import figures
+from replicate.figures.registry import describe, figures
 from replicate.reports.frontdoor import write_front_door
 
 
@@ -37,7 +37,7 @@ def test_the_guided_share_plug_in_rebuilds_from_a_store_and_joins_the_front_door
     (reports / "guided-share").mkdir(parents=True)
     for name in ("index.html", "summary.json"):
         (reports / "guided-share" / name).write_bytes((out / name).read_bytes())
-    page = write_front_door(reports).read_text()
+    page = write_front_door(reports, describe).read_text()
     assert "How often DRL-EG&#39;s guider acts over training" in page
     assert figures()["guided-share"].rebuild("quick", tmp_path / "empty", out, None) is None
 
@@ -48,10 +48,10 @@ def test_the_command_line_takes_each_figures_command_from_the_registry(
     import argparse
 
     from replicate.cli import main as cli
-
     from replicate.figures import registry as figure_registry
+    from replicate.figures.figure import FigureReport
+    from replicate.figures.registry import figure_commands
     from replicate.grids.options import Command
-    from replicate.figures.registry import FigureReport, figure_commands
 
     names = [command.name for command in figure_commands()]
     assert names == ["fig3", "fig4", "compare-rlfd", "ablate-threshold", "random-start"]
@@ -66,7 +66,7 @@ def test_the_command_line_takes_each_figures_command_from_the_registry(
     plug_in = FigureReport(
         "my-figure", lambda *a: None, lambda s: {}, Command("my-figure", declare, run)
     )
-    monkeypatch.setitem(figure_registry._FIGURES, "my-figure", plug_in)
+    monkeypatch.setattr(figure_registry, "PLUG_INS", (*figure_registry.PLUG_INS, plug_in))
     monkeypatch.chdir(tmp_path)  # the front door it refreshes is this directory's
     (tmp_path / "reports").mkdir()
     assert cli.main(["my-figure"]) == 0

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from replicate.figures.registry import describe
 from replicate.reports.frontdoor import find_reports, verdict_table, write_front_door
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,8 +25,8 @@ def reports_copy(tmp_path):
 
 
 def test_verdicts_equal_the_reports_own(reports_copy):
-    page = write_front_door(reports_copy).read_text()
-    profiles, rows = verdict_table(find_reports(reports_copy))
+    page = write_front_door(reports_copy, describe).read_text()
+    profiles, rows = verdict_table(find_reports(reports_copy, describe))
     assert profiles == ["quick", "reduced"]
     for profile in profiles:
         base = reports_copy / ("" if profile == "quick" else profile)
@@ -41,7 +42,7 @@ def test_verdicts_equal_the_reports_own(reports_copy):
 def test_the_committed_front_door_is_current():
     """reports/index.html names the same verdicts and reports as one rebuilt now."""
     committed = (REPORTS / "index.html").read_text()
-    profiles, rows = verdict_table(find_reports(REPORTS))
+    profiles, rows = verdict_table(find_reports(REPORTS, describe))
     for row in rows:
         for profile, cell in row["cells"].items():
             shown = html.escape(cell["verdict"], quote=True).replace("&#x27;", "&#39;")
@@ -52,7 +53,7 @@ def test_a_missing_torn_or_foreign_summary_marks_that_report_unavailable(reports
     (reports_copy / "fig4" / "summary.json").unlink()
     (reports_copy / "rlfd" / "summary.json").write_text('{"profile": "quick", "cells": [')
     (reports_copy / "ablate-threshold" / "summary.json").write_text('["not", "ours"]')
-    page = write_front_door(reports_copy).read_text()
+    page = write_front_door(reports_copy, describe).read_text()
     assert "unavailable: no summary.json" in page
     assert "unavailable: summary.json unreadable (JSONDecodeError)" in page
     assert "unavailable: summary.json is not a report summary of this harness" in page
@@ -80,6 +81,6 @@ def test_a_dry_run_leaves_the_front_door_alone(tmp_path, monkeypatch):
     from replicate.cli.main import main
 
     written = []
-    monkeypatch.setattr(frontdoor, "write_front_door", lambda root: written.append(root))
+    monkeypatch.setattr(frontdoor, "write_front_door", lambda root, describe: written.append(root))
     assert main(["fig3", "--profile", "quick", "--dry-run", "--store", str(tmp_path)]) == 0
     assert written == []

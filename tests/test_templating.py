@@ -1,4 +1,5 @@
-from replicate.reports.templating import count_seeds, report_environment, share_summary, step_share
+from replicate.claims.words import count_seeds
+from replicate.reports.templating import report_environment, share_summary, step_share
 
 
 def test_seed_counts_are_singular_for_one():

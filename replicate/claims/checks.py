@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from replicate.claims.measures import instabilities as measured_instabilities
 from replicate.stats import CONFIDENCE, MeanEstimate, curve_area, holm, seed_matched_difference
+from replicate.store.measures import instabilities as measured_instabilities
 
 ALPHA_ONE_SIDED = (1 - CONFIDENCE) / 2  # a one-sided test per side of a 95% interval
 LABELS = {
@@ -43,7 +43,7 @@ class Group:
     env_id: str
     algo: str
     seeds: list[int]
-    finals: np.ndarray  # (runs,) final return: the late-training mean (replicate.claims.measures)
+    finals: np.ndarray  # (runs,) final return: the late-training mean (replicate.store.measures)
     curves: np.ndarray  # (runs, points) over the evaluation steps all runs share
     steps: np.ndarray | None = None  # (points,) those steps; None: evenly spaced
     # env steps per second of one training process, by device kind ("cpu", "gpu"), median

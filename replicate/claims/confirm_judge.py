@@ -1,6 +1,6 @@
 """A registered confirmatory plan judged on its own runs: the check it names, on the runs
 its seeds trained and no others, with the test and level it registered (one check per
-plan, so no Holm adjustment). ``replicate.claims.confirm`` writes and trains the plans.
+plan, so no Holm adjustment). ``replicate.confirm.plan`` writes and trains the plans.
 
 Imports no torch and runs no git: the reports read it.
 """
@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 
 from replicate.claims.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE
-from replicate.claims.judge import build_check
 from replicate.claims.declaration import CheckSpec
-from replicate.errors import HarnessError
 from replicate.claims.groups import claim_groups
+from replicate.claims.judge import build_check
+from replicate.errors import HarnessError
 from replicate.store.runs import is_complete, load_run
 
 PLANS_DIR = Path("plans")  # relative to the repository root, committed with the plans
@@ -32,7 +32,7 @@ def plan_path(profile: str, check_id: str, plans_dir: Path = PLANS_DIR) -> Path:
 
 
 def read_plan(path: Path) -> dict[str, Any]:
-    """A plan file as written by ``replicate.claims.confirm.write_plan``, with ``path`` added."""
+    """A plan file as written by ``replicate.confirm.plan.write_plan``, with ``path`` added."""
     path = Path(path)
     try:
         with open(path, "rb") as handle:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from replicate.errors import HarnessError
-from replicate.claims.measures import DEFAULT_DECLARATION
+from replicate.store.measures import DEFAULT_DECLARATION
 
 CHECK_KINDS = ("mean", "difference", "escape")
 MEASURES = ("final_return", "area", "instability")

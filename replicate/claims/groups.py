@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from replicate.claims.checks import Group
-from replicate.claims.measures import final_returns, last_returns
+from replicate.store.measures import final_returns, last_returns
 from replicate.store.runs import Run
 
 

@@ -24,10 +24,14 @@ from replicate.claims.checks import (
     instabilities,
     where,
 )
-from replicate.claims.declaration import CheckSpec, ClaimSpec, Declaration, PartSpec, load_declaration
+from replicate.claims.declaration import (
+    CheckSpec,
+    ClaimSpec,
+    Declaration,
+    PartSpec,
+    load_declaration,
+)
 from replicate.claims.published import published_points
-from replicate.stats import seed_matched_difference, t_mean
-from replicate.reports.templating import count_seeds
 from replicate.claims.verdicts import (
     CONTRADICTED,
     NOT_TESTABLE_CLAIM,
@@ -35,6 +39,8 @@ from replicate.claims.verdicts import (
     part_state,
     what_would_decide,
 )
+from replicate.claims.words import count_seeds
+from replicate.stats import seed_matched_difference, t_mean
 
 ANT = "Ant-v5"
 PAPER_FIG4_SEEDS = 4  # the paired seeds of the paper's Fig. 4

@@ -17,7 +17,7 @@ from io import StringIO
 
 import pandas as pd
 
-from replicate.reports.templating import count_seeds
+from replicate.claims.words import count_seeds
 
 ENV_NAMES = {
     "Hopper-v5": "Hopper",
@@ -169,3 +169,14 @@ def compare_with_published(env_id: str, steps: int, ours: float) -> str | None:
     if not parts:
         return None
     return f"{env_id} at {steps:,} steps, our SAC {ours:.0f}: " + "; ".join(parts)
+
+
+# The targets for the harness's experts (the demonstrations' mean return): within or just
+# below the range that published twin-Q SAC (SB3 zoo, CleanRL, Tianshou) reaches at 1M steps
+# (replicate/data/published/sac_mujoco.csv has the sources).
+EXPERT_TARGETS = {
+    "Hopper-v5": 3000.0,
+    "Walker2d-v5": 4000.0,
+    "HalfCheetah-v5": 9000.0,
+    "Ant-v5": 4000.0,
+}

@@ -1,5 +1,5 @@
 """``python -m replicate confirm``: confirmatory plans for the open checks of a profile's
-claims (``replicate.claims.confirm``): list them by cost, register one, train a registered one,
+claims (``replicate.confirm.plan``): list them by cost, register one, train a registered one,
 and list the registered plans with their progress or verdict."""
 
 from __future__ import annotations
@@ -97,8 +97,8 @@ def _number(x: float) -> str:
 
 def plan_row(plan: Any) -> list[str]:
     """One plan as the table's cells."""
-    from replicate.claims.confirm import route_words
     from replicate.claims.verdicts import MOST_SEEDS
+    from replicate.confirm.plan import route_words
 
     more = plan.n is None
     n = f"more than {MOST_SEEDS}" if more else str(plan.n)
@@ -152,7 +152,7 @@ def table(rows: list[list[str]]) -> str:
 
 
 def _list(args: argparse.Namespace, plans: list[Any], without: list[Any]) -> int:
-    from replicate.claims.confirm import CPU_PROCESSES, SIGMA_UPPER
+    from replicate.confirm.plan import CPU_PROCESSES, SIGMA_UPPER
 
     fits = [
         p
@@ -219,9 +219,9 @@ def _cmd_confirm(args: argparse.Namespace) -> int:
         if args.check is None:
             raise HarnessError("--train needs --check ID", "name the registered plan's check")
         return _train(args)
-    from replicate.claims.confirm import find_plan, plan_checks
-    from replicate.claims.confirm_register import register_plan
     from replicate.claims.declaration import load_declaration
+    from replicate.confirm.plan import find_plan, plan_checks
+    from replicate.confirm.register import register_plan
     from replicate.grids.profiles import get_profile
 
     declaration = load_declaration(args.declaration) if args.declaration else None
@@ -242,7 +242,7 @@ def _train(args: argparse.Namespace) -> int:
     import dataclasses
 
     from replicate.claims.confirm_judge import result_line
-    from replicate.claims.confirm_register import train_plan
+    from replicate.confirm.register import train_plan
     from replicate.grids.experiments import GridOptions
 
     grid = {f.name for f in dataclasses.fields(GridOptions)}

@@ -11,9 +11,7 @@ import time
 from pathlib import Path
 
 from replicate.cli import confirm as cli_confirm
-
-from replicate.cli import figures as cli_figures
-
+from replicate.cli import report as cli_report
 from replicate.cli import runs as cli_runs
 from replicate.grids.options import TIME_LIMIT_EXIT, Command
 
@@ -86,8 +84,8 @@ def subcommands() -> list[Command]:
         cli_runs.DEMOS,
         cli_runs.EXPERT,
         *figure_commands(),
-        cli_figures.REPORT,
-        cli_figures.TABLE1,
+        cli_report.REPORT,
+        cli_report.TABLE1,
         cli_confirm.CONFIRM,
         cli_runs.CARRY,
         cli_runs.ALGOS,
@@ -117,9 +115,10 @@ def _refreshing_front_door(args: argparse.Namespace, code: int, writes_report: s
         and getattr(args, "profile", "quick") != "smoke"
         and Path("reports").is_dir()
     ):
+        from replicate.figures.registry import describe
         from replicate.reports.frontdoor import write_front_door
 
-        print(f"front door: {write_front_door(Path('reports'))}")
+        print(f"front door: {write_front_door(Path('reports'), describe)}")
     return code
 
 

@@ -283,9 +283,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_demos(args: argparse.Namespace) -> int:
     from envs import ENV_SPECS
-    from replicate.demos import RULE_EXPERTS, default_demo_path, make_demos, save_demos
+    from replicate.demos import RULE_EXPERTS, default_demo_path, save_demos
     from replicate.errors import HarnessError
-    from replicate.experts import expert_path
+    from replicate.experts import expert_path, make_demos
 
     if args.all and args.out:
         raise HarnessError(
@@ -360,8 +360,8 @@ def _one_expert(args: argparse.Namespace) -> None:
 
 
 def _cmd_carry(args: argparse.Namespace) -> int:
-    from replicate.store import carry
     from replicate.errors import HarnessError
+    from replicate.store import carry
 
     if not args.list:
         if args.workers < 1:

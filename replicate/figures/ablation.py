@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from replicate.errors import HarnessError
 from replicate.figures.ablation_grid import (
     ABLATION_ENV,
     MUJOCO_ABLATION_ENVS,
@@ -36,12 +37,11 @@ from replicate.figures.ablation_grid import (
 )
 from replicate.figures.ablation_report import write_ablation_report
 from replicate.grids.drl_eg_settings import DEFAULT_GUIDE_NOISE_STD, T2_RULE_SETTINGS
-from replicate.errors import HarnessError
 from replicate.grids.experiments import GridOptions, run_grid
-from replicate.grids.train import stored_runs
 from replicate.grids.profiles import GridOutcome, get_profile, report_dir
-from replicate.store.runner import prepare
+from replicate.grids.train import stored_runs
 from replicate.stats import stratified_bootstrap_ci
+from replicate.store.runner import prepare
 
 RULE_PROFILE = "reduced"  # the budget whose ablation fixes the MuJoCo rule
 # Written before any reduced-budget ablation run had finished, and not to be changed after.

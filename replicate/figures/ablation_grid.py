@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from replicate.grids.drl_eg_settings import ALWAYS_GUIDE, SPACING_MULTIPLES, drl_eg_env_defaults
-from replicate.grids.train import algorithm_overrides
 from replicate.grids.profiles import Profile
-from replicate.store.spec import RunSpec
+from replicate.grids.train import algorithm_overrides
 from replicate.store.runs import Run
+from replicate.store.spec import RunSpec
 
 ALWAYS = ALWAYS_GUIDE
 THRESHOLDS: dict[str, list[float]] = {  # MountainCar's grid, absolute values

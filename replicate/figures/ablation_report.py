@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from replicate.grids import drl_eg_settings
 from replicate.figures.ablation_grid import (
     ALWAYS,
     Cell,
@@ -21,9 +20,10 @@ from replicate.figures.ablation_grid import (
     threshold_label,
     threshold_spacing,
 )
+from replicate.grids import drl_eg_settings
 from replicate.grids.profiles import GridOutcome, Profile
-from replicate.store.provenance import portable_path
 from replicate.stats import t_mean
+from replicate.store.provenance import portable_path
 from replicate.store.runs import Run
 
 

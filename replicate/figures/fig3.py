@@ -13,18 +13,23 @@ from typing import Any
 
 import numpy as np
 
-from replicate.store import provenance
 from replicate.claims.checks import Group
-from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
-from replicate.errors import HarnessError
-from replicate.grids.experiments import GridOptions
-from replicate.figures.plots import CurveBand, aggregate_png, learning_curves_png
-from replicate.figures.forest import forest_images
-from replicate.grids.train import algorithm_overrides, stored_outcome, train_and_report
 from replicate.claims.groups import claim_groups, curve_matrix, group_runs
-from replicate.claims.measures import final_returns
-from replicate.grids.profiles import PAPER_BUDGETS, PAPER_SEEDS_FIG3, GridOutcome, Profile, get_profile
 from replicate.claims.published import FAMILY_TITLES, published_points
+from replicate.errors import HarnessError
+from replicate.figures.forest import forest_images
+from replicate.figures.plots import CurveBand, aggregate_png, learning_curves_png
+from replicate.figures.training import train_and_report
+from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
+from replicate.grids.experiments import GridOptions
+from replicate.grids.profiles import (
+    PAPER_BUDGETS,
+    PAPER_SEEDS_FIG3,
+    GridOutcome,
+    Profile,
+    get_profile,
+)
+from replicate.grids.train import algorithm_overrides, stored_outcome
 from replicate.reports.pages import (
     REPORT_SEED,
     demo_returns,
@@ -35,7 +40,6 @@ from replicate.reports.pages import (
     threats_to_validity,
     write_report,
 )
-from replicate.store.spec import RunSpec
 from replicate.stats import (
     CONFIDENCE,
     interquartile_mean,
@@ -46,7 +50,10 @@ from replicate.stats import (
     t_mean,
     t_mean_columns,
 )
+from replicate.store import provenance
+from replicate.store.measures import final_returns
 from replicate.store.runs import Run
+from replicate.store.spec import RunSpec
 
 FIG3_ALGORITHMS = ("sac", "ppo", "ppo-bc", "ddpgfd", "drl-eg", "drl-eg-gmm")
 

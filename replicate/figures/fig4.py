@@ -12,33 +12,33 @@ from typing import Any
 
 import numpy as np
 
+from replicate.claims.groups import claim_groups
 from replicate.claims.judge import PAPER_FIG4_SEEDS
+from replicate.errors import HarnessError
+from replicate.figures.training import write_saying_why
 from replicate.grids.drl_eg_settings import (
     T2_WAIT_REASON,
     drl_eg_env_defaults,
     guidance_settings,
     waits_for_t2_rule,
 )
-from replicate.errors import HarnessError
 from replicate.grids.experiments import GridOptions
+from replicate.grids.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.grids.train import (
     algorithm_overrides,
     stored_outcome,
     stored_runs,
     train_cells,
-    write_saying_why,
 )
-from replicate.claims.groups import claim_groups
-from replicate.grids.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.reports.pages import (
     ledger,
     published_rows,
     threats_to_validity,
     write_report,
 )
-from replicate.store.spec import RunSpec
 from replicate.stats import CONFIDENCE, paired_mean_difference
 from replicate.store.runs import Run
+from replicate.store.spec import RunSpec
 
 FIG4_ENV = "Ant-v5"
 FIG4_SEEDS = PAPER_FIG4_SEEDS  # the paper's four fixed seeds; claim 5 counts them too
@@ -169,8 +169,8 @@ def write_figure4_report(
     """Fig. 4: one panel per seed, SAC against DRL-EG from identical initial weights, the
     paired differences, and claim 5 when the env is the paper's (Ant)."""
     from replicate.claims.judge import ANT, PAPER_FIG4_SEEDS
-    from replicate.figures.plots import paired_curves_png
     from replicate.figures.forest import forest_images
+    from replicate.figures.plots import paired_curves_png
 
     by_seed: dict[int, dict[str, Run]] = defaultdict(dict)
     for run in outcome.runs:

@@ -1,7 +1,7 @@
 """How often DRL-EG's guider acts: for every DRL-EG run of a profile's Fig. 3 budgets in the
 store, the share of training steps on which the guider chose the action, per evaluation
-interval over training. A figure added as a plug-in (``figure_registry.register``): it
-trains nothing and reads only the run store."""
+interval over training. A figure added as a plug-in (its ``FIGURE``, named in the figure
+registry): it trains nothing and reads only the run store."""
 
 from __future__ import annotations
 
@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 
 from replicate.claims.confirm_judge import SEED_BLOCK
-from replicate.figures.registry import FigureReport, budget_words, register, seed_words
+from replicate.figures.figure import FigureReport
 from replicate.grids.profiles import BUDGETS
+from replicate.reports.words import budget_words, seed_words
 from replicate.store.runs import Run, completed_runs
 
 NAME = "guided-share"
@@ -122,4 +123,4 @@ def describe(summary: dict[str, Any]) -> dict[str, str]:
     }
 
 
-register(FigureReport(NAME, rebuild, describe))
+FIGURE = FigureReport(NAME, rebuild, describe)

@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from replicate.cli.figures import run_figure
-from replicate.grids.options import Command, HelpFormatter, add_grid_arguments
-from replicate.figures.registry import FigureReport, budget_words, register, seed_words
+from replicate.figures.figure import FigureReport
+from replicate.grids.options import Command, HelpFormatter, add_grid_arguments, run_figure
 from replicate.grids.profiles import BUDGETS, PROFILES, GridOutcome, report_dir
-from replicate.store.spec import RunSpec
+from replicate.reports.words import budget_words, seed_words
 from replicate.stats import curve_area, paired_mean_difference
 from replicate.store.runs import Run
+from replicate.store.spec import RunSpec
 
 if TYPE_CHECKING:
     from replicate.grids.experiments import GridOptions
@@ -216,8 +216,8 @@ def run_random_start(
 ) -> Path | None:
     """Train what the study lacks (the random-start runs; the default start's are Fig. 3's;
     only on ``envs`` when given) and write its report from every run of the study."""
+    from replicate.figures.training import train_and_report
     from replicate.grids.experiments import GridOptions
-    from replicate.grids.train import train_and_report
 
     out = Path(out_dir or report_dir(profile, NAME))
     return train_and_report(
@@ -279,4 +279,4 @@ def _run_command(args: argparse.Namespace) -> int:
     return run_figure(run_random_start, args)
 
 
-register(FigureReport(NAME, rebuild, describe, Command(NAME, _declare_command, _run_command)))
+FIGURE = FigureReport(NAME, rebuild, describe, Command(NAME, _declare_command, _run_command))

@@ -24,14 +24,14 @@ import numpy as np
 
 from replicate.claims.checks import EQUIVALENT, FAILS, HOLDS, PAIRED, Check, decide
 from replicate.claims.judge import SMALLEST_EFFECT
-from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
+from replicate.claims.verdicts import what_would_decide
 from replicate.errors import HarnessError
+from replicate.figures.training import train_and_report
+from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
 from replicate.grids.experiments import GridOptions
-from replicate.grids.train import algorithm_overrides, stored_outcome, train_and_report
 from replicate.grids.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
+from replicate.grids.train import algorithm_overrides, stored_outcome
 from replicate.reports.pages import drl_eg_improvement
-from replicate.store.runner import Run
-from replicate.store.spec import RunSpec
 from replicate.stats import (
     CONFIDENCE,
     interquartile_mean,
@@ -40,7 +40,8 @@ from replicate.stats import (
     stratified_bootstrap_ci,
     substream,
 )
-from replicate.claims.verdicts import what_would_decide
+from replicate.store.runner import Run
+from replicate.store.spec import RunSpec
 
 RLFD_ALGORITHMS = ("sac", "drl-eg", "ibrl", "rlpd", "jsrl", "ddpgfd")
 MOUNTAINCAR = "MountainCarContinuous-v0"
@@ -327,8 +328,8 @@ def write_rlfd_report(
 ) -> Path:
     """Write the comparison's ``index.html`` and ``summary.json`` into ``out_dir``;
     ``guidance`` (``drl_eg_settings.guidance_settings``) is printed beside the verdicts."""
-    from replicate.store import provenance
     from replicate.reports.pages import mujoco_threats, write_report
+    from replicate.store import provenance
 
     budgets = RLFD_BUDGETS[profile.name]
     result = compare(outcome.runs, budgets, REPORT_SEED)

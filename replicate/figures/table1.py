@@ -8,19 +8,10 @@ from pathlib import Path
 from typing import Any
 
 from envs import ENV_SPECS, make_env
+from replicate.claims.published import EXPERT_TARGETS
 from replicate.demos import default_demo_path, load_demos
 from replicate.errors import DemoError, HarnessError
 from replicate.reports.templating import report_environment
-
-# The targets for the harness's experts (the demonstrations' mean return): within or just
-# below the range that published twin-Q SAC (SB3 zoo, CleanRL, Tianshou) reaches at 1M steps
-# (replicate/data/published/sac_mujoco.csv has the sources).
-EXPERT_TARGETS = {
-    "Hopper-v5": 3000.0,
-    "Walker2d-v5": 4000.0,
-    "HalfCheetah-v5": 9000.0,
-    "Ant-v5": 4000.0,
-}
 
 
 def table1_rows() -> list[dict[str, Any]]:

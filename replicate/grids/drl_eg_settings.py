@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from replicate.errors import HarnessError
-from replicate.store.spec import RunSpec
 from replicate.store.runs import Run
+from replicate.store.spec import RunSpec
 
 # Per-env values of what the paper leaves open (T2 in raw state units, sigma in action units).
 # An env not listed takes T2 from its demonstrations (drl_eg_env_defaults).

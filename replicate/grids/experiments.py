@@ -19,7 +19,6 @@ from tqdm import tqdm
 
 from baselines.common.checkpoint import TimeLimitReached, past
 from baselines.common.device import worker_devices
-from replicate.store import checkpoint_places
 from replicate.errors import HarnessError, TimeLimitStop
 from replicate.grids.planning import (
     estimate_minutes,
@@ -31,6 +30,7 @@ from replicate.grids.planning import (
 )
 from replicate.grids.profiles import GridOutcome
 from replicate.grids.ray_executor import run_on_ray
+from replicate.store import checkpoint_places
 from replicate.store.runner import (
     DEFAULT_CHECKPOINT_INTERVAL,
     PreparedRun,

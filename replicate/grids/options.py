@@ -5,6 +5,8 @@ trains a grid takes (declared once), the device and time-limit options, their he
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -203,3 +205,23 @@ class Command:
     name: str
     declare: Callable[[Any], None]
     run: Callable[[argparse.Namespace], int]
+
+
+def _reported(report: Path | None) -> int:
+    """A figure command's end: the report it wrote, if it wrote one (a dry run writes none)."""
+    if report is not None:
+        print(f"report: {report}")
+    return 0
+
+
+def run_figure(run: Callable[..., Path | None], args: argparse.Namespace, **given: Any) -> int:
+    """Call a figure's run function with the command's options: the grid options as one
+    ``GridOptions``, every other option to the parameter of its name (``--out`` reaches
+    ``out_dir``, ``--env`` ``env_id``); ``given`` adds or overrides."""
+    from replicate.grids.experiments import GridOptions
+
+    grid = {f.name for f in dataclasses.fields(GridOptions)}
+    options = GridOptions(**{name: value for name, value in vars(args).items() if name in grid})
+    named = {**vars(args), "out_dir": args.out, "env_id": getattr(args, "env", None)}
+    kwargs = {p: named[p] for p in inspect.signature(run).parameters if p in named}
+    return _reported(run(**{**kwargs, "options": options, **given}))

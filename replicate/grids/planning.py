@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from replicate.store import checkpoint_places
 from replicate.errors import HarnessError
+from replicate.store import checkpoint_places
 from replicate.store.runner import PreparedRun, batch_key
 from replicate.store.runs import completed_runs
 

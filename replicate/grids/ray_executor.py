@@ -9,9 +9,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from baselines.common.checkpoint import TimeLimitReached, past
-from replicate.store import checkpoint_places
 from replicate.errors import HarnessError
 from replicate.grids.planning import estimate_minutes
+from replicate.store import checkpoint_places
 from replicate.store.runner import PreparedRun, execute
 
 

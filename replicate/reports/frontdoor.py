@@ -13,11 +13,15 @@ import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
-from replicate.figures.registry import seed_words
-from replicate.figures.registry import steps_words as _steps
 from replicate.reports.templating import report_environment
+from replicate.reports.words import seed_words
+from replicate.reports.words import steps_words as _steps
+
+# The front door's words for a report, from its directory name and summary (None: a report
+# this version of the harness does not know); the figure registry gives them.
+Describe = Callable[[str, dict[str, Any]], "dict[str, str] | None"]
 
 PROFILE_ORDER = ("quick", "reduced", "paper")  # columns; smoke reports mean nothing
 CLAIM_IDS = (1, 2, 3, 4, 5)
@@ -46,7 +50,7 @@ def _kind(name: str) -> str:
     return name
 
 
-def read_report(root: Path, directory: Path) -> ReportEntry:
+def read_report(root: Path, directory: Path, describe: Describe) -> ReportEntry:
     """The entry of one report directory; ``unavailable`` says why when its summary
     cannot be used."""
     from replicate.reports.pages import summary_run_ids
@@ -75,24 +79,21 @@ def read_report(root: Path, directory: Path) -> ReportEntry:
     entry.generated = str(summary.get("generated", ""))[:10]
     try:
         entry.runs = len(summary_run_ids(summary))
-        _describe(entry, summary)
+        _describe(entry, summary, describe)
     except (KeyError, TypeError, ValueError) as exc:
         entry.unavailable = f"summary.json lacks what this page reads ({exc})"
     return entry
 
 
-def _describe(entry: ReportEntry, summary: dict[str, Any]) -> None:
-    from replicate.figures.registry import figures
-
-    figure = figures().get(entry.path.split("/")[-1])
-    if figure is None:
+def _describe(entry: ReportEntry, summary: dict[str, Any], describe: Describe) -> None:
+    words = describe(entry.path.split("/")[-1], summary)
+    if words is None:
         entry.covers = "a report this version of the harness does not know"
         return
-    words = figure.describe(summary)
     entry.covers, entry.budget, entry.seeds = words["covers"], words["budget"], words["seeds"]
 
 
-def find_reports(root: Path) -> list[ReportEntry]:
+def find_reports(root: Path, describe: Describe) -> list[ReportEntry]:
     """Every report under ``root`` (reports/), smoke ones and benchmarks left out."""
     directories = sorted(
         {p.parent for p in root.rglob("index.html")}
@@ -104,7 +105,7 @@ def find_reports(root: Path) -> list[ReportEntry]:
             continue
         if any(part.startswith(".") for part in directory.relative_to(root).parts):
             continue  # a rebuild in progress
-        entries.append(read_report(root, directory))
+        entries.append(read_report(root, directory, describe))
     order = {p: k for k, p in enumerate(PROFILE_ORDER)}
     return sorted(entries, key=lambda e: (order.get(e.profile or "", -1), e.path))
 
@@ -170,12 +171,13 @@ def headline_figure(root: Path, entries: list[ReportEntry]) -> tuple[str | None,
     return None, None
 
 
-def write_front_door(root: Path = Path("reports")) -> Path:
-    """Write ``root/index.html`` from the reports under ``root``."""
+def write_front_door(root: Path, describe: Describe) -> Path:
+    """Write ``root/index.html`` from the reports under ``root``, each described by
+    ``describe`` (the figure registry's ``describe``)."""
     from replicate.reports.pages import _atomic_write
 
     root = Path(root)
-    entries = find_reports(root)
+    entries = find_reports(root, describe)
     profiles, rows = verdict_table(entries)
     figure, figure_from = headline_figure(root, entries)
     largest = next(

@@ -16,9 +16,8 @@ from replicate.claims.checks import Group
 from replicate.claims.judge import claim_envs, judge_claims, label
 from replicate.claims.confirm_judge import confirmatory_results
 from replicate.claims.declaration import declaration_version, load_declaration, trained_before
-from replicate.figures.registry import seed_words
 from replicate.claims.groups import READINGS, claim_groups
-from replicate.claims.measures import DEFAULT_DECLARATION
+from replicate.store.measures import DEFAULT_DECLARATION
 from replicate.grids.profiles import PAPER_SEEDS_FIG3, Profile
 from replicate.claims.published import published_points
 from replicate.stats import (
@@ -28,6 +27,7 @@ from replicate.stats import (
 )
 from replicate.store.runs import Run
 from replicate.reports.templating import report_environment, step_share
+from replicate.reports.words import seed_words
 
 REPORT_SEED = 20_260_101  # the bootstrap's own stream: reports rebuild identically
 
@@ -348,7 +348,7 @@ def threats_to_validity(
     seeds against the paper's, how much DRL-EG's guider acted, how far the demonstrations
     fall short of the experts' targets, our SAC against published SAC at the same steps, and
     ``sac_start`` (a line on how our SAC starts) when given. Empty without MuJoCo runs."""
-    from replicate.figures.table1 import EXPERT_TARGETS
+    from replicate.claims.published import EXPERT_TARGETS
 
     mujoco = [r for r in runs if r.spec["env_id"] in MUJOCO_ENVS]
     if not mujoco:

@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import jinja2
 
-
-def count_seeds(n: int, kind: str = "") -> str:
-    """``n`` seeds in words, singular for one: '1 seed', '3 seeds', '1 paired seed'."""
-    return f"{n} {kind}seed{'' if n == 1 else 's'}"
+from replicate.claims.words import count_seeds
 
 
 def step_share(x: float) -> str:

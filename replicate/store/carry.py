@@ -33,8 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from replicate.store import checkpoint_places
-
+from replicate.errors import HarnessError
 from replicate.store import provenance
 from replicate.store.carry_format import (
     read_state,
@@ -42,8 +41,7 @@ from replicate.store.carry_format import (
     sha256,
     write_state,
 )
-from replicate.store.checkpoint_places import CHECKPOINT_FILE, KeptCheckpoint
-from replicate.errors import HarnessError
+from replicate.store.place import CHECKPOINT_FILE, KeptCheckpoint
 from replicate.store.run_recorder import (
     EARLIER_SEGMENTS_FILE,
     SEGMENTS_FILE,
@@ -419,7 +417,7 @@ def listing(store: Path) -> list[dict[str, Any]]:
 
 
 class CarryPlace:
-    """The carry as a checkpoint place (``replicate.store.checkpoint_places``)."""
+    """The carry as a checkpoint place (``replicate.store.place``)."""
 
     def kept(self, store: Path) -> list[KeptCheckpoint]:
         return [
@@ -444,6 +442,3 @@ class CarryPlace:
 
     def tidy(self, store: Path) -> None:
         prune(store)
-
-
-checkpoint_places.register(CarryPlace())

@@ -1,5 +1,6 @@
 """The carried checkpoint's format: a seed batch's replay rebuilt from its actions, and the
-checkpoint's state and the members' actions written xz-compressed (see ``replicate.store.carry``)."""
+checkpoint's state and the members' actions written xz-compressed (see
+``replicate.store.carry``)."""
 
 from __future__ import annotations
 

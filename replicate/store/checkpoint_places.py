@@ -2,68 +2,29 @@
 narrow interface: the runner asks the places to fetch a batch's checkpoint before it trains
 and tells them when the batch has landed; the scheduler asks what they keep (to resume a
 batch whole, to estimate what is left, to say where a missing run stands). Neither knows
-what a place is. A place is a module listed in ``PLACE_MODULES`` that calls ``register``;
-the one the harness ships is ``replicate.store.carry`` (checkpoints packed small enough to commit
-and carried between machines).
+what a place is. A place implements ``CheckpointPlace`` (``replicate.store.place``) and is
+listed in ``places``; the one the harness ships is the carry (``replicate.store.carry``:
+checkpoints packed small enough to commit and carried between machines).
 
 This module imports nothing heavy: the reports and the dry run read it.
 """
 
 from __future__ import annotations
 
-import importlib
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
 
-CHECKPOINT_FILE = "checkpoint.pt"  # a batch's checkpoint in the store: .batch-<id>/checkpoint.pt
-PLACE_MODULES = ("replicate.store.carry",)
-
-
-@dataclass(frozen=True)
-class KeptCheckpoint:
-    """A checkpoint kept by a place: of seed batch ``name`` (a run alone is a batch of one)
-    with run ids ``members``, at env step ``step`` per member."""
-
-    name: str
-    members: tuple[str, ...]
-    step: int
-    where: Path  # the place's directory, for messages
-    note: str  # when and where it was kept, in a few words
-
-
-class CheckpointPlace(Protocol):
-    def kept(self, store: Path) -> list[KeptCheckpoint]:
-        """What the place keeps for ``store``."""
-        ...
-
-    def fetch(self, store: Path, name: str, checkpoint: Path) -> None:
-        """Put batch ``name``'s kept checkpoint at ``checkpoint`` if there is none there or
-        the kept one is further on."""
-        ...
-
-    def landed(self, store: Path, names: list[str]) -> None:
-        """Batch or run ``names`` landed in the store: keep nothing more of them."""
-        ...
-
-    def tidy(self, store: Path) -> None:
-        """Forget what is kept of batches of which a run landed by another way."""
-        ...
-
-
-_PLACES: list[CheckpointPlace] = []
-
-
-def register(place: CheckpointPlace) -> CheckpointPlace:
-    if place not in _PLACES:
-        _PLACES.append(place)
-    return place
+from replicate.store.place import (  # noqa: F401  (the interface, re-exported)
+    CHECKPOINT_FILE,
+    CheckpointPlace,
+    KeptCheckpoint,
+)
 
 
 def places() -> list[CheckpointPlace]:
-    for module in PLACE_MODULES:
-        importlib.import_module(module)
-    return list(_PLACES)
+    """The places the harness ships: the carry alone (imported on first use, for cost)."""
+    from replicate.store.carry import CarryPlace
+
+    return [CarryPlace()]
 
 
 def kept(store: Path | None) -> list[KeptCheckpoint]:

@@ -19,7 +19,7 @@ from replicate.store import provenance
 from replicate.store.runs import CURVE_COLUMNS
 
 if TYPE_CHECKING:
-    from replicate.store.runner import PreparedRun
+    from replicate.store.spec import PreparedRun
 
 SEGMENTS_FILE = "segments.json"  # one entry per uninterrupted stretch of a run's training
 EARLIER_SEGMENTS_FILE = "sittings.json"  # the same list in stores written before 2026-12-04

@@ -39,11 +39,10 @@ from baselines.common.checkpoint import CheckpointDeviceError, TimeLimitReached
 from baselines.common.context import BatchContext, TrainContext
 from baselines.common.device import describe_device, device_kind, resolve_device, resume_device
 from baselines.registry import batchable_algorithms, get_algorithm
-from replicate.store import checkpoint_places
-from replicate.store import provenance
-from replicate.demos import Demonstrations, default_demo_path, load_demos
-from replicate.store.devices import check_device  # noqa: F401  (part of the runner's interface)
+from replicate.demos import default_demo_path, load_demos
 from replicate.errors import HarnessError
+from replicate.store import checkpoint_places, provenance
+from replicate.store.devices import check_device  # noqa: F401  (part of the runner's interface)
 from replicate.store.provenance import PROJECT_ROOT, portable_path  # noqa: F401  (interface)
 from replicate.store.run_recorder import (  # noqa: F401
     SEGMENTS_FILE,
@@ -52,7 +51,6 @@ from replicate.store.run_recorder import (  # noqa: F401
     write_json,
     write_segments,
 )
-from replicate.store.spec import RunSpec, spec_hash
 from replicate.store.runs import (  # noqa: F401  (the run store's reading side, re-exported)
     CURVE_COLUMNS,
     Run,
@@ -60,20 +58,9 @@ from replicate.store.runs import (  # noqa: F401  (the run store's reading side,
     is_complete,
     load_run,
 )
+from replicate.store.spec import PreparedRun, RunSpec, spec_hash  # noqa: F401  (interface)
 
 provenance.code_revision()  # fix the code's revision when the code is loaded
-
-
-@dataclass
-class PreparedRun:
-    spec: RunSpec
-    resolved: dict[str, Any]
-    config: Any
-    demos: Demonstrations | None
-    run_id: str
-
-    def directory(self, store: Path) -> Path:
-        return Path(store) / self.run_id
 
 
 # Settings added after runs were committed: at these values they are left out of the

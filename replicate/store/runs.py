@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from replicate.errors import HarnessError
-from replicate.claims.measures import final_returns
+from replicate.store.measures import final_returns
 
 CURVE_COLUMNS = [
     "step",
@@ -38,7 +38,7 @@ class Run:
     @property
     def final_return(self) -> float:
         """The mean of its evaluations over the last 10% of its budget, and at least its
-        last 3 (the declared measure: ``replicate.claims.measures``)."""
+        last 3 (the declared measure: ``replicate.store.measures``)."""
         steps = self.curve["step"].to_numpy(float)
         return float(final_returns(steps, self.curve["return_mean"].to_numpy(float))[0])
 

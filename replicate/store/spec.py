@@ -5,10 +5,14 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from envs import env_spec
 from replicate.errors import HarnessError
+
+if TYPE_CHECKING:
+    from replicate.demos import Demonstrations
 
 
 @dataclass(frozen=True)
@@ -57,3 +61,17 @@ def spec_hash(resolved: dict[str, Any]) -> str:
     in, demonstrations by content hash rather than path)."""
     canonical = json.dumps(resolved, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+@dataclass
+class PreparedRun:
+    """A spec made ready to train: its resolved settings, config, demonstrations and address."""
+
+    spec: RunSpec
+    resolved: dict[str, Any]
+    config: Any
+    demos: Demonstrations | None
+    run_id: str
+
+    def directory(self, store: Path) -> Path:
+        return Path(store) / self.run_id

@@ -1,7 +1,7 @@
 """A confirmatory plan registered and trained: written as TOML under ``plans/``, allowed to
 train only while committed in git and unchanged since (and none of its runs begun before
 that commit), and its runs trained as the Fig. 3 grid's (or Fig. 4's) at the plan's seeds,
-through the grids' usual path into the run store. ``replicate.claims.confirm`` plans;
+through the grids' usual path into the run store. ``replicate.confirm.plan`` plans;
 ``replicate.claims.confirm_judge`` judges.
 """
 
@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from replicate.claims.confirm import SIGMA_UPPER, Plan, outcomes_of, route_words
 from replicate.claims.confirm_judge import PLANS_DIR, plan_path, read_plan
+from replicate.claims.verdicts import MOST_SEEDS
+from replicate.confirm.plan import SIGMA_UPPER, Plan, outcomes_of, route_words
 from replicate.errors import HarnessError
 from replicate.grids.profiles import Profile
 from replicate.stats import DECIDING_CHANCE
-from replicate.claims.verdicts import MOST_SEEDS
 
 # Writing a plan: TOML by hand, the few value types a plan holds.
 
@@ -324,8 +324,8 @@ def train_plan(
     prints what would train, without the git check, and returns None."""
     from replicate.claims.confirm_judge import judge_plan
     from replicate.grids.experiments import GridOptions
-    from replicate.grids.train import train_cells
     from replicate.grids.profiles import get_profile
+    from replicate.grids.train import train_cells
 
     options = options or GridOptions()
     plan = read_plan(plan_file)

@@ -1,6 +1,6 @@
 """Confirmatory plans: for each open check of a profile's claims, the fresh seeds that would
 decide it with an 80% chance in one registered test, what they cost and which claim
-verdicts the outcome could reach. ``replicate.claims.confirm_register`` writes a plan under
+verdicts the outcome could reach. ``replicate.confirm.register`` writes a plan under
 ``plans/`` (committed before its runs train) and trains its runs; ``replicate.claims.confirm_judge``
 judges a plan on its own runs.
 
@@ -21,17 +21,17 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from replicate.store import checkpoint_places
 from replicate.claims.checks import EQUIVALENT, FAILS, HOLDS, INCONCLUSIVE, Check
-from replicate.claims.judge import build_check, judge_claims
 from replicate.claims.confirm_judge import PLANS_DIR, SEED_BLOCK, plan_path, read_plan
 from replicate.claims.declaration import CheckSpec, Declaration, load_declaration
+from replicate.claims.groups import claim_groups
+from replicate.claims.judge import build_check, judge_claims
+from replicate.claims.verdicts import MOST_SEEDS, claim_verdict, part_state, scaled_spread
 from replicate.errors import HarnessError
 from replicate.figures.fig3 import figure3_command, figure3_grid
 from replicate.figures.fig4 import figure4_runs
-from replicate.grids.train import stored_outcome
-from replicate.claims.groups import claim_groups
 from replicate.grids.profiles import Profile
+from replicate.grids.train import stored_outcome
 from replicate.stats import (
     DECIDING_CHANCE,
     PAIRED_METHOD,
@@ -39,7 +39,7 @@ from replicate.stats import (
     chance_to_decide,
     seeds_to_decide,
 )
-from replicate.claims.verdicts import MOST_SEEDS, claim_verdict, part_state, scaled_spread
+from replicate.store import checkpoint_places
 
 SIGMA_UPPER = 0.80  # the spread assumed: sigma's one-sided upper confidence limit at this level
 CPU_PROCESSES = 2  # costs are stated for a 2-core CPU machine, one process per core
