@@ -22,7 +22,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 REPRODUCIBILITY = DOCS / "reproducibility.md"
-RESULTS = DOCS / "results.md"
 # The commit that made '+dirty' count only the code a run executes (1b1aa23): a run whose
 # training began before it may carry the mark for an edit to the docs alone.
 DIRTY_RULE_CHANGED_UTC = "2026-12-04T08:03:02+00:00"
@@ -126,33 +125,30 @@ def test_the_docs_count_the_dirty_runs():
     n = len(dirty)
     assert_states(
         flat(REPRODUCIBILITY),
-        f"{n} committed runs record a revision marked `+dirty`",
+        f"In all, {n} committed runs record a revision marked `+dirty`",
         "reproducibility.md",
     )
-    assert_states(
-        flat(RESULTS), f"In all, {n} committed runs record a revision marked `+dirty`", "results.md"
-    )
-    # results.md places them: this many in the reduced Fig. 3, that many in the comparison
+    # reproducibility.md places them: this many in the reduced Fig. 3, that many in the
+    # comparison, all of the comparison's on the sparse dm-control tasks
     ids = {r.run_id for r in dirty}
     fig3 = len(ids & report_run_ids("reports/reduced/fig3"))
-    rlfd = len(ids & report_run_ids("reports/reduced/rlfd"))
+    in_rlfd = ids & report_run_ids("reports/reduced/rlfd")
+    rlfd = len(in_rlfd)
     assert fig3 + rlfd == n, (
         f"{n - fig3 - rlfd} '+dirty' runs are in neither reports/reduced/fig3 nor "
-        f"reports/reduced/rlfd: results.md should say where they are"
+        f"reports/reduced/rlfd: reproducibility.md should say where they are"
     )
     assert_states(
-        flat(RESULTS),
+        flat(REPRODUCIBILITY),
         tuple(
-            f"{w} of the reduced Fig. 3 runs and {rlfd} of the reduced comparison's runs"
+            f"{w} of the reduced Fig. 3 runs and {rlfd} of the reduced comparison's runs, "
+            "all on the sparse dm-control tasks"
             for w in count_words(fig3)
         ),
-        "results.md",
+        "reproducibility.md",
     )
-    assert_states(
-        section(RESULTS, "Comparison with other RLfD methods, reduced profile"),
-        f"{rlfd} of the sparse-task runs record a revision marked `+dirty`",
-        "results.md, the reduced comparison",
-    )
+    off_sparse = sorted(r for r in in_rlfd if not r.split("__")[1].startswith("dm_control"))
+    assert not off_sparse, f"'+dirty' comparison runs off the sparse dm-control tasks: {off_sparse}"
 
 
 def test_every_dirty_run_trained_under_the_older_rule():
@@ -165,7 +161,7 @@ def test_every_dirty_run_trained_under_the_older_rule():
     ]
     assert not later, (
         f"{later} carry '+dirty' from after {DIRTY_RULE_CHANGED_UTC}, when it meant an edit "
-        "to the code: reproducibility.md and results.md say every '+dirty' run is older"
+        "to the code: reproducibility.md says every '+dirty' run is older"
     )
 
 
@@ -236,9 +232,10 @@ def test_the_docs_say_which_runs_name_no_cpu_model():
         "the docs call the runs without a CPU model the earliest MountainCar ones; now also "
         f"{sorted({r.env for r in unnamed} - {'MountainCarContinuous-v0'})}"
     )
-    assert_states(flat(REPRODUCIBILITY), f"except in {n} committed runs", "reproducibility.md")
-    assert_states(flat(RESULTS), f"its CPU model except in {n} runs", "results.md")
-    # results.md lists them by algorithm and seeds
+    assert_states(
+        flat(REPRODUCIBILITY), f"its CPU model except in {n} committed runs", "reproducibility.md"
+    )
+    # reproducibility.md lists them by algorithm and seeds
     seeds: dict[str, list[int]] = {}
     for r in unnamed:
         seeds.setdefault(r.algo, []).append(int(r.run_id.split("__")[2][1:]))
@@ -250,4 +247,6 @@ def test_the_docs_say_which_runs_name_no_cpu_model():
         assert found == list(range(found[0], found[-1] + 1)), f"{algo}: seeds {found}"
         span = f"{found[0]}-{found[-1]}" if len(found) > 1 else str(found[0])
         listed.append(f"{LABELS[algo]} {span}")
-    assert_states(flat(RESULTS), f"(seeds by algorithm: {', '.join(listed)})", "results.md")
+    assert_states(
+        flat(REPRODUCIBILITY), f"(seeds by algorithm: {', '.join(listed)})", "reproducibility.md"
+    )

@@ -13,6 +13,7 @@ from replicate.grids.options import (
     Command,
     HelpFormatter,
     add_device_argument,
+    positive_int,
 )
 
 
@@ -51,10 +52,13 @@ def _parse_overrides(pairs: list[str]) -> dict:
 def _declare_train(sub: Any) -> None:
     train = sub.add_parser(
         "train",
-        help="train one run into the run store",
+        help="train one run, or a seed batch, into the run store",
         description="Train one run (algorithm x env x seed x budget) into the run store, "
         "with a progress bar. A run whose resolved spec is already complete in "
-        "the store is not trained again.",
+        "the store is not trained again. With --seeds K: seeds SEED to SEED+K-1; "
+        "with --batch N as well, up to N of them train together in one process "
+        "as a seed batch (algorithms of the SAC family; each seed's curve is "
+        "the one it draws alone), e.g. --seed 0 --seeds 8 --batch 4 --workers 2.",
         formatter_class=HelpFormatter,
     )
     train.add_argument(
@@ -71,6 +75,25 @@ def _declare_train(sub: Any) -> None:
     )
     train.add_argument(
         "--seed", type=int, default=0, help="seed of env, weights, exploration and replay sampling"
+    )
+    train.add_argument(
+        "--seeds",
+        type=positive_int,
+        default=1,
+        help="how many seeds to train, from --seed up (default: 1)",
+    )
+    train.add_argument(
+        "--batch",
+        type=positive_int,
+        default=None,
+        help="with --seeds: train up to this many seeds together in one process "
+        "(a seed batch); default: one seed per process on CPU",
+    )
+    train.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="with --seeds: processes training at once (default: one per core)",
     )
     train.add_argument(
         "--eval-interval",
@@ -245,25 +268,38 @@ def _declare_envs(sub: Any) -> None:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from replicate.store.runner import execute, prepare
+    from replicate.store.runner import prepare
     from replicate.store.spec import RunSpec
 
-    eval_interval = args.eval_interval or max(1, args.steps // 20)
-    spec = RunSpec(
-        algo=args.algo,
-        env_id=args.env,
-        seed=args.seed,
-        total_steps=args.steps,
-        eval_interval=eval_interval,
-        eval_episodes=args.eval_episodes,
-        hyperparameters=_parse_overrides(args.overrides),
-        demos=args.demos,
-    )
-    prepared = prepare(spec)
+    specs = [
+        RunSpec(
+            algo=args.algo,
+            env_id=args.env,
+            seed=seed,
+            total_steps=args.steps,
+            eval_interval=args.eval_interval or max(1, args.steps // 20),
+            eval_episodes=args.eval_episodes,
+            hyperparameters=_parse_overrides(args.overrides),
+            demos=args.demos,
+        )
+        for seed in range(args.seed, args.seed + args.seeds)
+    ]
+    prepared = [prepare(spec) for spec in specs]  # a bad spec fails here, in one line
+    if len(specs) == 1 and args.batch is None and args.workers is None:
+        return _train_alone(prepared[0], args)
+    return _train_seeds(specs, args)
+
+
+def _train_alone(prepared: Any, args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from replicate.store.runner import execute
+
     with tqdm(
-        total=spec.total_steps, unit="step", desc=prepared.run_id[:48], dynamic_ncols=True
+        total=prepared.spec.total_steps,
+        unit="step",
+        desc=prepared.run_id[:48],
+        dynamic_ncols=True,
     ) as bar:
         run = execute(
             prepared,
@@ -278,6 +314,29 @@ def _cmd_train(args: argparse.Namespace) -> int:
         f"final return {run.final_return:.2f}; wall {prov['wall_time_s']:.1f} s; "
         f"{prov['env_steps_per_s']} env steps/s on {prov['device']}"
     )
+    return 0
+
+
+def _train_seeds(specs: list[Any], args: argparse.Namespace) -> int:
+    """Several seeds through the grid path: seed batches, worker processes, checkpoints."""
+    from replicate.errors import HarnessError
+    from replicate.grids.experiments import GridOptions, run_grid
+
+    options = GridOptions(
+        workers=args.workers,
+        checkpoint_interval=args.checkpoint_interval,
+        device=args.device,
+        batch=args.batch,
+    )
+    outcome = run_grid(specs, args.store, options)
+    for run in sorted(outcome.runs, key=lambda r: r.spec["seed"]):
+        print(f"run: {run.path}  final return {run.final_return:.2f}")
+    if outcome.failed:
+        run_id, reason = outcome.failed[0]
+        raise HarnessError(
+            f"{len(outcome.failed)} of {len(specs)} run(s) failed, e.g. {run_id}: {reason}",
+            "fix the cause and run the same command: finished seeds are kept",
+        )
     return 0
 
 
