@@ -162,6 +162,23 @@ def test_train_writes_a_complete_run_directory_and_skips_it_the_second_time(tmp_
     assert code == 0 and (run_dir / "provenance.json").stat().st_mtime == mtime
 
 
+def test_train_seeds_in_a_batch_give_each_seed_the_curve_it_draws_alone(tmp_path, capsys):
+    import pandas as pd
+
+    common = ["train", "--algo", "sac", "--env", "Hopper-v5", "--steps", "240"]
+    common += ["--eval-interval", "120", "--eval-episodes", "1", *TINY_SET]
+    together, alone = tmp_path / "together", tmp_path / "alone"
+    batch = ["--seed", "3", "--seeds", "2", "--batch", "2", "--workers", "1"]
+    code, out, _ = run_cli([*common, *batch, "--store", str(together)], capsys)
+    assert code == 0 and out.count("final return") == 2
+    assert run_cli([*common, "--seed", "4", "--store", str(alone)], capsys)[0] == 0
+    (seed4,) = [p for p in together.iterdir() if "__s4__" in p.name]
+    (single,) = [p for p in alone.iterdir() if not p.name.startswith(".")]
+    assert seed4.name == single.name  # one address: batching is not part of a run's spec
+    returns = [pd.read_csv(d / "curve.csv")["return_mean"] for d in (seed4, single)]
+    np.testing.assert_allclose(returns[0], returns[1], rtol=1e-6)
+
+
 def test_a_crashing_run_leaves_no_directory(tmp_path, capsys, monkeypatch):
     import baselines.offpolicy
 
