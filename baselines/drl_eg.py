@@ -284,19 +284,44 @@ def _train_guided(bctx: BatchContext, configs: list, agent_cls: type) -> ReplayB
     return train_members(bctx, agent, lambda built: guided_explorer(bctx, built, configs))
 
 
-@register("drl-eg", DRLEGConfig, needs_demos=True, gpu=True, batchable=True)
+# the batched explorer reads T2 and sigma per member: a T2 sweep trains as one seed batch
+PER_MEMBER_GUIDANCE = ("guide_threshold", "guide_noise_std")
+
+
+@register(
+    "drl-eg",
+    DRLEGConfig,
+    needs_demos=True,
+    gpu=True,
+    batchable=True,
+    per_member_settings=PER_MEMBER_GUIDANCE,
+)
 def train(bctx: BatchContext, configs: list[DRLEGConfig]) -> ReplayBuffer:
     """DRL-EG with the functional D(s) and G(s) of the paper, on top of SAC."""
     return _train_guided(bctx, configs, SACAgent)
 
 
-@register("drl-eg-gmm", DRLEGGMMConfig, needs_demos=True, gpu=True, batchable=True)
+@register(
+    "drl-eg-gmm",
+    DRLEGGMMConfig,
+    needs_demos=True,
+    gpu=True,
+    batchable=True,
+    per_member_settings=PER_MEMBER_GUIDANCE,
+)
 def train_gmm(bctx: BatchContext, configs: list[DRLEGGMMConfig]) -> ReplayBuffer:
     """DRL-EG with the GMM discriminator (density above T) and the functional guider."""
     return _train_guided(bctx, configs, SACAgent)
 
 
-@register("drl-eg-twin-q", DRLEGTwinQConfig, needs_demos=True, gpu=True, batchable=True)
+@register(
+    "drl-eg-twin-q",
+    DRLEGTwinQConfig,
+    needs_demos=True,
+    gpu=True,
+    batchable=True,
+    per_member_settings=PER_MEMBER_GUIDANCE,
+)
 def train_twin_q(bctx: BatchContext, configs: list[DRLEGTwinQConfig]) -> ReplayBuffer:
     """DRL-EG's guidance on twin-Q, learned-temperature SAC (not the paper's; SB3's SAC)."""
     return _train_guided(bctx, configs, TwinQSACAgent)

@@ -33,6 +33,9 @@ class Algorithm:
     # the seed-batch trainer ``train_batch(bctx, configs)``; None: one run per process
     train_batch: Callable[[BatchContext, list[Any]], Any] | None = None
     module: str = ""  # where it is defined
+    # settings each member of a seed batch keeps for itself (its trainer reads them per
+    # member), so runs that differ in them may share a batch: a T2 sweep trains as one
+    per_member_settings: tuple[str, ...] = ()
 
     @property
     def batchable(self) -> bool:
@@ -60,9 +63,11 @@ def register(
     needs_demos: bool = False,
     gpu: bool = False,
     batchable: bool = False,
+    per_member_settings: tuple[str, ...] = (),
 ) -> Callable[[Callable], Callable]:
     """Decorator for an algorithm's train function: ``train(ctx, config)``, or with
-    ``batchable`` ``train(bctx, configs)``."""
+    ``batchable`` ``train(bctx, configs)``; ``per_member_settings``: config fields a seed
+    batch's members may differ in (each member reads its own)."""
 
     def wrap(train: Callable) -> Callable:
         if name in _REGISTRY and _REGISTRY[name].module != train.__module__:
@@ -71,7 +76,15 @@ def register(
         batch = _flushing_denormals(train) if batchable else None
         one_run = _batch_of_one(batch) if batch is not None else _flushing_denormals(train)
         _REGISTRY[name] = Algorithm(
-            name, config_cls, one_run, needs_demos, summary, gpu, batch, train.__module__
+            name,
+            config_cls,
+            one_run,
+            needs_demos,
+            summary,
+            gpu,
+            batch,
+            train.__module__,
+            per_member_settings,
         )
         return train
 

@@ -296,7 +296,13 @@ def test_the_runner_and_the_scheduler_reach_the_carry_only_through_checkpoint_pl
 
     import replicate
 
-    core = ("runner", "experiments", "planning", "grids", "ray_executor")
+    core = (
+        "store/runner",
+        "grids/experiments",
+        "grids/planning",
+        "grids/train",
+        "grids/ray_executor",
+    )
     for name in core:
         tree = ast.parse((Path(replicate.__file__).parent / f"{name}.py").read_text())
         imported = {

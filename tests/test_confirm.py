@@ -37,8 +37,8 @@ def declaration(store, tmp_path):
     at 2.5% needs 12.7), and one check that fails, so an outcome can change a verdict."""
     from replicate.claims.groups import claim_groups
     from replicate.figures.fig3 import figure3_grid
-    from replicate.grids.train import stored_runs
     from replicate.stats import paired_mean_difference, t_mean
+    from replicate.store.query import stored_runs
 
     groups = claim_groups(stored_runs(figure3_grid(SMOKE)[0], store))
     ppo_bc = t_mean(groups[(MC, "ppo-bc")].finals)
@@ -265,7 +265,7 @@ def test_a_plans_runs_are_the_grids_runs_at_other_seeds(store):
 def test_reports_that_read_a_cells_runs_leave_a_plans_seeds_out(store):
     from replicate.figures.fig3 import figure3_grid
     from replicate.figures.guided_share import guided_runs
-    from replicate.grids.train import stored_runs
+    from replicate.store.query import stored_runs
 
     source = next(store.glob(f"drl-eg__{MC}__s0__*"))
     copy = store / source.name.replace("__s0__", "__s1000__")

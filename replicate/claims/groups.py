@@ -9,15 +9,26 @@ import numpy as np
 import pandas as pd
 
 from replicate.claims.checks import Group
+from replicate.errors import HarnessError
 from replicate.store.measures import final_returns, last_returns
+from replicate.store.query import cells
 from replicate.store.runs import Run
 
 
 def group_runs(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
+    """Runs by (env, algorithm), each sorted by seed. The runs of one group must differ only
+    in seed: runs of other settings (an ablation's T2 points, another budget) are cells of
+    their own, and judging them as seeds of one cell fails here, in one line."""
     groups: dict[tuple[str, str], list[Run]] = defaultdict(list)
     for run in runs:
         groups[(run.spec["env_id"], run.spec["algo"])].append(run)
-    for members in groups.values():
+    for (env_id, algo), members in groups.items():
+        if len(cells(members)) > 1:
+            raise HarnessError(
+                f"{algo} on {env_id}: runs of {len(cells(members))} different settings would "
+                "be judged as seeds of one cell",
+                "ask the run store for the grid's runs (replicate.store.query.runs_of)",
+            )
         members.sort(key=lambda r: r.spec["seed"])
     return dict(groups)
 

@@ -39,8 +39,9 @@ from replicate.figures.ablation_report import write_ablation_report
 from replicate.grids.drl_eg_settings import DEFAULT_GUIDE_NOISE_STD, T2_RULE_SETTINGS
 from replicate.grids.experiments import GridOptions, run_grid
 from replicate.grids.profiles import GridOutcome, get_profile, report_dir
-from replicate.grids.train import stored_runs
 from replicate.stats import stratified_bootstrap_ci
+from replicate.store import query
+from replicate.store.query import stored_runs
 from replicate.store.runner import prepare
 
 RULE_PROFILE = "reduced"  # the budget whose ablation fixes the MuJoCo rule
@@ -322,23 +323,17 @@ def rebuild_threshold_ablation(
     """Write the ablation report from the store alone: every (T2, sigma) point whose DRL-EG
     runs at the profile's budget are there, over the seeds found. Returns None, writing
     nothing, when the store holds none (a committed report stays)."""
-    from replicate.store.runner import completed_runs
+    from replicate.claims.confirm_judge import SEED_BLOCK
 
     chosen = get_profile(profile)
     store = Path(store)
     points: dict[tuple[float, float], int] = {}
-    for run in completed_runs(store):
-        spec = run.spec
-        if (
-            spec["algo"] == "drl-eg"
-            and spec["env_id"] == env_id
-            and spec["total_steps"] == chosen.steps.get(env_id)
-        ):
-            key = (
-                spec["hyperparameters"]["guide_threshold"],
-                spec["hyperparameters"]["guide_noise_std"],
-            )
-            points[key] = max(points.get(key, 0), spec["seed"] + 1)
+    steps = chosen.steps.get(env_id)
+    drl_eg = query.Cell("drl-eg", env_id, steps, seeds=(0, SEED_BLOCK))
+    for run in query.find_runs(store, drl_eg) if steps is not None else []:
+        hyper = run.spec["hyperparameters"]
+        key = (hyper["guide_threshold"], hyper["guide_noise_std"])
+        points[key] = max(points.get(key, 0), run.spec["seed"] + 1)
     # as many seeds as the sweep trains: Fig. 3's DRL-EG runs share the 1x point's spec on
     # more seeds, and would otherwise give that point more seeds than the others
     sweep_seeds = MUJOCO_ABLATION_SEEDS if env_id in MUJOCO_ABLATION_ENVS else chosen.seeds

@@ -20,7 +20,7 @@ from replicate.errors import HarnessError
 from replicate.figures.forest import forest_images
 from replicate.figures.plots import CurveBand, aggregate_png, learning_curves_png
 from replicate.figures.training import train_and_report
-from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
+from replicate.grids.drl_eg_settings import env_settings, guidance_settings
 from replicate.grids.experiments import GridOptions
 from replicate.grids.profiles import (
     PAPER_BUDGETS,
@@ -83,8 +83,7 @@ def figure3_grid(
                 )
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
-            if algo.startswith("drl-eg"):
-                hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
+            hyper.update(env_settings(algo, env_id, profile.name))
             for seed in range(n_seeds):
                 specs.append(
                     RunSpec(

@@ -27,7 +27,6 @@ from replicate.grids.profiles import BUDGETS, GridOutcome, Profile, get_profile,
 from replicate.grids.train import (
     algorithm_overrides,
     stored_outcome,
-    stored_runs,
     train_cells,
 )
 from replicate.reports.pages import (
@@ -37,6 +36,7 @@ from replicate.reports.pages import (
     write_report,
 )
 from replicate.stats import CONFIDENCE, paired_mean_difference
+from replicate.store.query import stored_runs
 from replicate.store.runs import Run
 from replicate.store.spec import RunSpec
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import base64
 from collections import defaultdict
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -15,42 +16,32 @@ import numpy as np
 
 from replicate.claims.confirm_judge import SEED_BLOCK
 from replicate.figures.figure import FigureReport
+from replicate.grids.drl_eg_settings import GUIDED_ALGORITHMS, T2_ALGORITHMS, drl_eg_env_defaults
 from replicate.grids.profiles import BUDGETS
 from replicate.reports.words import budget_words, seed_words
+from replicate.store.query import Cell, select
 from replicate.store.runs import Run, completed_runs
 
 NAME = "guided-share"
-GUIDED_ALGORITHMS = ("drl-eg", "drl-eg-gmm", "drl-eg-twin-q")
 
 
 def guided_runs(profile: str, store: Path) -> list[Run]:
     """The store's DRL-EG runs of ``profile``'s Fig. 3 cells: at its budget for their env and
-    with the T2 in force there (the threshold ablation's other T2 values left out), at the
-    grid's seeds (a confirmatory plan's fresh seeds, ``confirm_judge.SEED_BLOCK`` on, left
-    out)."""
-    from replicate.grids.drl_eg_settings import drl_eg_env_defaults
+    with the T2 in force there (the threshold ablation's other T2 values are cells of their
+    own), at the grid's seeds (a confirmatory plan's fresh seeds, ``confirm_judge.SEED_BLOCK``
+    on, are judged on their own)."""
 
-    budgets = BUDGETS["fig3"][profile]
-    in_force: dict[tuple[str, str], float] = {}
-
-    def fig3_t2(run: Run) -> bool:
-        env_id, algo = run.spec["env_id"], run.spec["algo"]
-        if (env_id, algo) not in in_force:
-            in_force[(env_id, algo)] = drl_eg_env_defaults(env_id, profile, algo)["guide_threshold"]
-        return (
-            algo == "drl-eg-gmm"
-            or run.spec["hyperparameters"].get("guide_threshold") == in_force[(env_id, algo)]
-        )
-
-    return [
-        run
-        for run in completed_runs(store)
-        if run.spec["algo"] in GUIDED_ALGORITHMS
-        and (run.spec["total_steps"], run.spec["eval_interval"])
-        == budgets.get(run.spec["env_id"], (None, None))
-        and fig3_t2(run)
-        and run.spec["seed"] < SEED_BLOCK  # a confirmatory plan's runs are judged on their own
-    ]
+    every = completed_runs(store)
+    found = []
+    for env_id, (steps, interval) in BUDGETS["fig3"][profile].items():
+        for algo in GUIDED_ALGORITHMS:
+            cell = Cell(algo, env_id, steps, interval, seeds=(0, SEED_BLOCK))
+            runs = select(every, cell)
+            if runs and algo in T2_ALGORITHMS:  # T2 in force: read only where there are runs
+                t2 = drl_eg_env_defaults(env_id, profile, algo)["guide_threshold"]
+                runs = select(runs, replace(cell, settings={"guide_threshold": t2}))
+            found += runs
+    return sorted(found, key=lambda run: run.path.name)
 
 
 def guided_share_png(runs: list[Run], title: str) -> bytes:

@@ -27,7 +27,7 @@ from replicate.claims.judge import SMALLEST_EFFECT
 from replicate.claims.verdicts import what_would_decide
 from replicate.errors import HarnessError
 from replicate.figures.training import train_and_report
-from replicate.grids.drl_eg_settings import drl_eg_env_defaults, guidance_settings
+from replicate.grids.drl_eg_settings import env_settings, guidance_settings
 from replicate.grids.experiments import GridOptions
 from replicate.grids.profiles import BUDGETS, GridOutcome, Profile, get_profile, report_dir
 from replicate.grids.train import algorithm_overrides, stored_outcome
@@ -81,8 +81,7 @@ def rlfd_grid(
                 skipped.append((env_id, algo, "no committed demonstrations for this env yet"))
                 continue
             hyper = algorithm_overrides(algo, profile.overrides)
-            if algo.startswith("drl-eg"):
-                hyper.update(drl_eg_env_defaults(env_id, profile.name, algo))
+            hyper.update(env_settings(algo, env_id, profile.name))
             if algo == "rlpd" and env_id in SPARSE_TASKS:
                 hyper["backup_entropy"] = False
             specs += [

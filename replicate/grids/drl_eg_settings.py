@@ -34,7 +34,14 @@ T2_RULE_SETTINGS = tuple(f"{m}x" for m in SPACING_MULTIPLES) + ("always",)
 MUJOCO_T2_RULE: str | None = "1x"  # the committed ablation's choice (docs/decisions.md)
 MUJOCO_ENVS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5")
 RULED_PROFILES = ("reduced", "paper")  # the budgets at which the ablation's rule applies
+GUIDED_ALGORITHMS = ("drl-eg", "drl-eg-gmm", "drl-eg-twin-q")  # the variants with a guider
 T2_ALGORITHMS = ("drl-eg", "drl-eg-twin-q")  # the GMM variant's threshold is a quantile
+
+
+def env_settings(algo: str, env_id: str, profile: str) -> dict[str, Any]:
+    """What the harness sets per env where the paper is silent, for a grid's run of ``algo``:
+    a DRL-EG variant's T2 and sigma; nothing for the other algorithms."""
+    return drl_eg_env_defaults(env_id, profile, algo) if algo in GUIDED_ALGORITHMS else {}
 
 
 def drl_eg_env_defaults(
@@ -113,7 +120,7 @@ def guidance_settings(
     judges."""
     cells = [(s.env_id, s.algo) for s in specs] + [(r.spec["env_id"], r.spec["algo"]) for r in runs]
     used: dict[tuple[str, str], list[Run]] = {
-        cell: [] for cell in cells if cell[1].startswith("drl-eg")
+        cell: [] for cell in cells if cell[1] in GUIDED_ALGORITHMS
     }
     for run in sorted(runs, key=lambda r: r.spec["seed"]):
         key = (run.spec["env_id"], run.spec["algo"])

@@ -13,7 +13,8 @@ from replicate.grids.experiments import GridOptions, run_grid
 from replicate.grids.profiles import GridOutcome
 from replicate.store import checkpoint_places
 from replicate.store.provenance import portable_path
-from replicate.store.runner import Run, is_complete, load_run, prepare
+from replicate.store.query import runs_of
+from replicate.store.runner import prepare
 from replicate.store.spec import RunSpec
 
 
@@ -36,24 +37,6 @@ def without_waiting(
         [s for s in specs if s not in waiting],
         skipped + sorted({(s.env_id, s.algo, T2_WAIT_REASON) for s in waiting}),
     )
-
-
-def stored_runs(specs: list[RunSpec], store: Path) -> list[Run]:
-    """The complete runs of ``specs`` in the store (nothing is trained)."""
-    return stored_and_absent(specs, store)[0]
-
-
-def stored_and_absent(specs: list[RunSpec], store: Path) -> tuple[list[Run], list[RunSpec]]:
-    """The complete runs of ``specs`` in the store (in the order of ``specs``), and the specs
-    whose run is not there yet."""
-    runs, absent = [], []
-    for spec in specs:
-        directory = prepare(spec).directory(store)
-        if is_complete(directory):
-            runs.append(load_run(directory))
-        else:
-            absent.append(spec)
-    return runs, absent
 
 
 def absent_cells(
@@ -106,7 +89,7 @@ def stored_outcome(
     cells that wait for the T2 rule and the runs not there yet listed as skipped; None when
     the store holds none of its runs."""
     specs, skipped = without_waiting(specs, skipped, profile)
-    runs, absent = stored_and_absent(specs, store)
+    runs, absent = runs_of(specs, store)
     if not runs:
         return None
     return GridOutcome(runs, [], None, skipped + absent_cells(absent, command, store))
@@ -146,6 +129,6 @@ def train_cells(
     outcome = run_grid(chosen, store, options)
     if len(chosen) == len(specs) or options.dry_run:
         return outcome
-    outcome.runs, absent = stored_and_absent(specs, store)  # in the grid's order
+    outcome.runs, absent = runs_of(specs, store)  # in the grid's order
     outcome.skipped = absent_cells([spec for spec in absent if spec not in chosen], command, store)
     return outcome

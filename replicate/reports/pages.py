@@ -57,15 +57,17 @@ def drl_eg_improvement(
 
 
 def published_rows(
-    groups: dict[tuple[str, str], Group], budgets: dict[str, int]
+    groups: dict[tuple[str, str], Group],
+    budgets: dict[str, int],
+    envs: set[str] | None = None,
 ) -> list[dict[str, Any]]:
     """Our SAC beside published SAC at every published budget within ours, and the
     evaluation at those steps of the run that trained the env's expert (the harness's
-    twin-Q SAC, one seed), where it trained that far."""
+    twin-Q SAC, one seed), where it trained that far; for ``envs`` (default: the groups')."""
     from replicate.experts import expert_training_curve
 
     rows = []
-    for env_id in sorted({e for e, _ in groups}):
+    for env_id in sorted({e for e, _ in groups} if envs is None else envs):
         if env_id not in budgets:
             continue
         sac = groups.get((env_id, "sac"))
@@ -311,11 +313,12 @@ def mujoco_threats(
     runs: list[Run], paper_seeds: int | None = None, guidance: bool = True
 ) -> list[str]:
     """``threats_to_validity`` for a report that is not Fig. 3 (the comparison, an ablation):
-    our SAC against published SAC at its runs' budget."""
+    our SAC against published SAC at its runs' budget (an ablation's runs are several cells
+    per env: only SAC's are grouped)."""
     budgets = {r.spec["env_id"]: int(r.spec["total_steps"]) for r in runs}
-    return threats_to_validity(
-        runs, published_rows(claim_groups(runs), budgets), paper_seeds, guidance
-    )
+    sac = claim_groups([r for r in runs if r.spec["algo"] == "sac"])
+    envs = {r.spec["env_id"] for r in runs}
+    return threats_to_validity(runs, published_rows(sac, budgets, envs), paper_seeds, guidance)
 
 
 def sac_standing(published: list[dict[str, Any]]) -> list[str]:

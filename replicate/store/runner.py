@@ -220,19 +220,15 @@ def _batch_of_one(train: Callable[[TrainContext, Any], Any]) -> Callable[..., An
     return train_batch
 
 
-# Settings each member of a batch keeps for itself (the batched explorer reads them per
-# member), so runs that differ in them may share a batch: a T2 sweep trains as one.
-PER_MEMBER_SETTINGS = ("guide_threshold", "guide_noise_std")
-
-
 def batch_key(prepared: PreparedRun) -> str:
     """Runs with equal keys may share a batch: everything of the resolved spec but the seed
-    and the per-member guidance settings (T2, sigma)."""
+    and the settings the algorithm keeps per member (``per_member_settings``)."""
+    per_member = get_algorithm(prepared.spec.algo).per_member_settings
     resolved = {
         k: v for k, v in prepared.resolved.items() if k not in ("seed", "spec_hash", "demos_path")
     }
     resolved["hyperparameters"] = {
-        k: v for k, v in resolved["hyperparameters"].items() if k not in PER_MEMBER_SETTINGS
+        k: v for k, v in resolved["hyperparameters"].items() if k not in per_member
     }
     return json.dumps(resolved, sort_keys=True, default=str)
 
