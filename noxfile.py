@@ -95,14 +95,19 @@ def confirm(session: nox.Session) -> None:
 
 @nox.session(python=PYTHON)
 def bench(session: nox.Session) -> None:
-    """Throughput against Stable-Baselines3 and the update floor; reports/bench/bench.json."""
+    """Throughput against Stable-Baselines3 and the update floor, seed batches, the compiled
+    gradient step; reports/bench/*.json (docs/performance.md)."""
     _install(session)
     session.install("stable-baselines3==2.9.2")  # the reference, a bench-only dependency
     session.install("pytest", "pytest-benchmark")
     env = {"MUJOCO_GL": "disable", "OMP_NUM_THREADS": "1"}
     session.run("python", "benchmarks/bench.py", *session.posargs, env=env)
+    # one CPU gradient step: where its time goes, and torch.compile against eager (into
+    # bench.json beside the above)
+    session.run("python", "benchmarks/cpu_step.py", env=env)
     # the seed-batched trainer: CPU sections (SAC; IBRL and RLPD) here
-    session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", env=env)
+    cpu_out = "reports/bench/batched_cpu.json"  # the file docs/performance.md reads
+    session.run("python", "benchmarks/batched.py", "--cpu", "--rlfd-cpu", "--out", cpu_out, env=env)
     # the trainer's stacked networks against torch.vmap over ordinary modules, one V-SAC step
     session.run("python", "benchmarks/stacked_vs_vmap.py", env=env)
     # the GPU section, where torch sees a GPU

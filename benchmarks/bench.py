@@ -46,6 +46,10 @@ from bench_cpu import cpu_measurements
 from bench_gpu import gpu_measurements
 from bench_measure import WARMUP
 
+# what another script adds to a file this one writes: gpu_checks.py's results, in
+# bench_gpu.json beside --gpu-only's measurements
+KEPT_SECTIONS = ("gpu_checks",)
+
 
 def print_table(rows: list[tuple]) -> None:
     print(f"\n{'ratio':66} {'measured':>9}  target")
@@ -75,9 +79,17 @@ def report(
     if torch.cuda.is_available():
         machine["gpu"] = torch.cuda.get_device_name()
     out.parent.mkdir(parents=True, exist_ok=True)
+    kept = {}
+    if out.is_file():
+        try:
+            previous = json.loads(out.read_text())
+        except json.JSONDecodeError:
+            previous = {}
+        kept = {k: previous[k] for k in KEPT_SECTIONS if k in previous}
     out.write_text(
         json.dumps(
             {
+                **kept,
                 "machine": machine,
                 "command": command,
                 "hopper_steps_per_run": steps,

@@ -317,28 +317,22 @@ def test_the_experts_table_is_the_demonstrations_record():
 
 
 def test_the_seed_batch_benches_are_the_recorded_ones():
+    """Every number quoted is the recorded one; a cell still TO-MEASURE awaits the bench."""
     perf = (DOCS / "performance.md").read_text()
     _, body = table_rows(perf, "| per machine, env steps/s |")
-    keys = ["machine one run per process"] + [
-        f"machine batched N={n} per process" for n in (2, 4, 8)
-    ]
-    # each cell's first round is the recorded bench of that tree
-    for column, name in ((1, "batched_cpu.json"), (2, "batched_cpu_fa6ef99.json")):
-        cpu = json.loads((ROOT / "reports/bench" / name).read_text())["cpu"]
-        assert [row[column].split(",")[0] for row in body] == [f"{cpu[k]:.1f}" for k in keys]
+    assert len(body) == 4
+    cpu = json.loads((ROOT / "reports/bench/batched_cpu.json").read_text())["cpu"]
+    one = "machine one run per process"
+    for row, n in zip(body, (None, 2, 4, 8)):
+        measured = cpu[one] if n is None else cpu[f"machine batched N={n} per process"]
+        ratio = 1 if n is None else cpu[f"batched N={n} / one run per process"]
+        for cell, recorded in ((row[1], f"{measured:.1f}"), (row[2], f"{ratio:.3g}")):
+            assert cell in ("TO-MEASURE", recorded), f"performance.md, {row[0]}: {cell}"
 
     gpu = json.loads((ROOT / "reports/bench/batched_gpu.json").read_text())["gpu_batched"]
-    _, body = table_rows(perf, "| env steps/s, summed |")
-    for row in body:
-        algo = {"V-SAC": "sac", "DRL-EG": "drl-eg"}.get(row[0].split(",")[0])
-        if algo is None:
-            continue  # the one-run line
-        env_id = row[0].split(", ")[1]
-        measured = [gpu[f"{algo} {env_id} N={n}"]["env_steps_per_s"] for n in (8, 16, 32, 64)]
-        quoted = [float(cell.replace(",", "")) for cell in row[1:5]]
-        assert all(abs(q - m) <= 0.5 for q, m in zip(quoted, measured)), (
-            f"performance.md, {row[0]}: {row[1:5]} against {measured}"
-        )
+    quoted = re.search(r"trained ([\d,]+) for 64 members", flat(DOCS / "performance.md"))
+    recorded = gpu["sac Hopper-v5 N=64"]["env_steps_per_s"]
+    assert quoted and abs(float(quoted[1].replace(",", "")) - recorded) <= 0.5
 
 
 # --- links ---------------------------------------------------------------------------------
