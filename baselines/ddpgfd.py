@@ -28,7 +28,7 @@ from baselines.common.checkpoint import OneRunCheckpoints
 from baselines.common.context import DemoSet, TrainContext
 from baselines.common.device import flush_denormals
 from baselines.common.evaluation import EVAL_SEED_OFFSET
-from baselines.common.networks import QNetwork, mlp, soft_update
+from baselines.common.networks import QNetwork, frozen, mlp, soft_update
 from baselines.common.prioritized import PrioritizedBatch, PrioritizedReplayBuffer
 from baselines.registry import register
 from envs import make_env
@@ -192,14 +192,11 @@ class DDPGfDAgent:
         critic_loss.backward()
         self.critic_optimizer.step()
 
-        for p in self.critic.parameters():  # the actor step needs dQ/da only
-            p.requires_grad_(False)
         # importance weights correct the critic's TD regression only, as in Schaul et al.
-        actor_loss = -self.critic(
-            batch.observations, self.actor(batch.observations)
-        ).mean() + cfg.l2_coef * l2_penalty(self.actor)
-        for p in self.critic.parameters():
-            p.requires_grad_(True)
+        with frozen(self.critic):  # the actor step needs dQ/da only
+            actor_loss = -self.critic(
+                batch.observations, self.actor(batch.observations)
+            ).mean() + cfg.l2_coef * l2_penalty(self.actor)
         self.actor_optimizer.zero_grad()
         actor_loss.backward()
         self.actor_optimizer.step()

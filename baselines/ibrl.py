@@ -35,9 +35,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from baselines.common.buffer import ReplayBuffer
+from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext, DemoSet
 from baselines.common.stacked import StackedReplay
+from baselines.contract import FULL_STEP
 from baselines.drl_eg import fit_neural_guider, functional_guider
 from baselines.offpolicy import PolicyExplorer, action_space, train_members
 from baselines.registry import register
@@ -118,9 +119,9 @@ class IBRLAgent(TwinQSACAgent):
         demos: Any,
         device: str = "cpu",
     ):
-        super().__init__(seeds, env_id, config, device, cuda_graphs=False)
         self.imitations = imitations
         self.demos = demos  # a DemoSet with transitions to preload, or None
+        super().__init__(seeds, env_id, config, device, cuda_graphs=False)
 
     def imitation_actions(self, states: np.ndarray) -> np.ndarray:
         """mu_k(s) of member k's states (N, B, obs_dim): (N, B, act_dim) float32."""
@@ -140,7 +141,7 @@ class IBRLAgent(TwinQSACAgent):
             rl_action = self.policy.deterministic(obs_t)
         else:
             noise = (
-                self._member_noise(1)
+                self.member_noise(1)
                 if self.device.type == "cpu"
                 else torch.randn((self.members, 1, self.act_dim), device=self.device)
             )
@@ -180,22 +181,10 @@ class IBRLAgent(TwinQSACAgent):
             )
         return replay
 
-    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
-        if self.device.type == "cpu":
-            batch = self.buffer.sample(self.batch_size, rngs)
-            noise = self._cpu_noise()
-        else:
-            uniform = torch.rand(
-                (self.members, self.batch_size), device=self.device, dtype=torch.float64
-            )  # float64: evenly likely slots in a large replay (offpolicy.py)
-            size = self.buffer.size
-            batch = self.buffer.gather((uniform * size).long().clamp_(max=size - 1))
-            noise = self._device_noise(batch)
-        # mu(s') is computed off the gradient step (a KD-tree query on the CPU) and passed in
+    def step_inputs(self, batch: Batch, kind: str = FULL_STEP) -> dict[str, torch.Tensor]:
+        """mu(s'), computed off the gradient step (a KD-tree query on the CPU)."""
         next_il = self.imitation_actions(batch.next_observations.cpu().numpy())
-        return self._gradient_step(
-            batch, noise, next_il_actions=torch.from_numpy(next_il).to(self.device)
-        )
+        return {"next_il_actions": torch.from_numpy(next_il).to(self.device)}
 
     def bootstrap_q(
         self, next_obs: torch.Tensor, next_actions: torch.Tensor, next_il_actions: torch.Tensor

@@ -15,15 +15,14 @@ replay, and so is the policy's action for all N (not IBRL's: its imitation actio
 the CPU); there the members draw their noise and replay indices from one device generator
 for the batch (GPU curves are not bit-reproducible in any case).
 
-The loop (``run_off_policy``) steps the N envs together (``envs.vector.EnvBatch``). A member
-whose losses turn NaN or inf fails alone: its env stops, its failure is reported, and the
-others go on. Checkpoints hold the whole batch and may be taken in the middle of episodes:
-the envs are restored by replaying their episode's actions.
+What an agent writes, may override and checkpoints is ``baselines.contract``. The loop
+(``run_off_policy``) steps the N envs together; a member whose losses turn NaN or inf fails
+alone. Checkpoints hold the whole batch, mid-episode too (the envs replay their actions).
 """
 
 from __future__ import annotations
 
-import copy
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -44,6 +43,14 @@ from baselines.common.device import GraphedStep
 from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
 from baselines.common.random_start import random_start_action
 from baselines.common.stacked import StackedMLP, StackedPolicy, StackedReplay
+from baselines.contract import (
+    AgentContract,
+    ContractError,
+    agent_state,
+    check_contract,
+    load_agent_state,
+    no_global_draws,
+)
 from envs import make_env
 from envs.vector import EnvBatch
 
@@ -97,21 +104,28 @@ def stack_policies(policies: list, device: torch.device) -> StackedPolicy:
     ).to(device)
 
 
-class OffPolicyAgent:
-    """What every SAC-family agent of N members shares: acting, the noise streams, the
-    replay and the update's plumbing; a subclass writes its gradient step once, on
+class OffPolicyAgent(AgentContract):
+    """The trainer's side of every SAC-family agent of N members: building in order,
+    acting, the noise streams, the replay and the update's plumbing. A subclass writes what
+    ``baselines.contract.AgentContract`` asks for; its gradient step is written once, on
     ``[N, B, ...]`` tensors. On CPU member k draws its noise from its own generator (seed +
     1); on a GPU the members draw from the batch's device generator."""
 
-    MODULES: tuple[str, ...] = ()  # the networks and optimisers a checkpoint holds
+    def __init__(
+        self,
+        seeds: list[int],
+        env_id: str,
+        config: OffPolicyConfig,
+        device: str = "cpu",
+        cuda_graphs: bool = True,
+    ):
+        obs_dim, low, high = self._begin(seeds, env_id, config, device)
+        self.build(obs_dim, low, high)
+        self._ready(cuda_graphs)
 
-    policy: StackedPolicy
-    device: torch.device
-    members: int
-    act_dim: int
-    generators: list[torch.Generator]
-
-    def _member_noise(self, rows: int, need: np.ndarray | None = None) -> torch.Tensor:
+    def member_noise(self, rows: int, need: np.ndarray | None = None) -> torch.Tensor:
+        """``rows`` standard normals (N, rows, act_dim) on the CPU, member k's from its own
+        generator; members not in ``need`` draw nothing (their rows stay 0)."""
         noise = torch.zeros((self.members, rows, self.act_dim))
         for k, generator in enumerate(self.generators):
             if need is None or need[k]:
@@ -125,23 +139,36 @@ class OffPolicyAgent:
         noise streams (member k's from seed k + 1); returns the observation size and the
         action box for building the networks."""
         self.config, self.device = config, torch.device(device)
+        self.batch_size = config.batch_size
         obs_dim, self.act_dim, low, high = action_space(env_id)
-        self.members = len(seeds)
+        self.seeds, self.members = list(seeds), len(seeds)
         self.generators = [torch.Generator().manual_seed(seed + 1) for seed in seeds]
         return obs_dim, low, high
 
     def _ready(self, cuda_graphs: bool) -> None:
-        """After the networks and optimisers: acting and the update (CUDA graphs on a GPU)."""
+        """After the networks and optimisers: the contract checked, then acting and the
+        update (CUDA graphs on a GPU)."""
+        check_contract(self, cuda_graphs)
         self._act_graph = GraphedStep(self._act_body, self.device, cuda_graphs)
-        self._setup_updates(self.config.batch_size, cuda_graphs)
+        self.buffer: StackedReplay | None = None
+        self._size = torch.zeros((), dtype=torch.long, device=self.device)
+        self._step_graphs = {
+            kind: GraphedStep(
+                functools.partial(self._sample_and_update, kind=kind), self.device, cuda_graphs
+            )
+            for kind in self.STEP_KINDS
+        }
+
+    @property
+    def _update_graph(self) -> GraphedStep:  # the first kind's (GPU tests replay it by hand)
+        return self._step_graphs[self.STEP_KINDS[0]]
 
     def _act_body(
         self, obs: torch.Tensor, noise: torch.Tensor | None = None
     ) -> dict[str, torch.Tensor]:
         if noise is None:  # on the GPU, inside the graph
             noise = torch.randn((self.members, 1, self.act_dim), device=self.device)
-        action, _ = self.policy.sample(obs[:, None, :], noise=noise)
-        return {"action": action[:, 0].detach()}
+        return {"action": self.explore(obs[:, None, :], noise)[:, 0].detach()}
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
@@ -149,7 +176,7 @@ class OffPolicyAgent:
         member's policy does not act, and its stream is not advanced)."""
         obs_t = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
         if self.device.type == "cpu":
-            out = self._act_body(obs_t, self._member_noise(1, need))
+            out = self._act_body(obs_t, self.member_noise(1, need))
         else:
             out = self._act_graph(obs=obs_t)
         return out["action"].cpu().numpy()
@@ -166,50 +193,41 @@ class OffPolicyAgent:
         rows[k, 0] = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
         return self.policy.deterministic(rows)[k, 0].cpu().numpy()
 
-    def make_replay(self, members: int, obs_dim: int, capacity: int) -> StackedReplay:
-        """The batch's replay (RLPD's adds the demonstrations beside it)."""
-        return StackedReplay(members, obs_dim, self.act_dim, capacity, self.device)
-
-    def extra_state(self) -> dict[str, Any]:
-        """What a checkpoint keeps beside the modules and the noise (RLPD: its step count)."""
-        return {}
-
-    def load_extra_state(self, state: dict[str, Any]) -> None:
-        pass
-
-    def _setup_updates(self, batch_size: int, cuda_graphs: bool) -> None:
-        self.batch_size = batch_size
-        self.buffer: StackedReplay | None = None
-        self._update_graph = GraphedStep(self._sample_and_update, self.device, cuda_graphs)
-        self._size = torch.zeros((), dtype=torch.long, device=self.device)
-
-    def _sample_and_update(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _sample_and_update(self, size: torch.Tensor, kind: str) -> dict[str, torch.Tensor]:
         """The GPU's whole step: replay indices, the batch, the noise and the update."""
-        # float64: float32 steps of 2^-24 would make slots high in a 1M replay 3-6% more
-        # or less likely than others
-        uniform = torch.rand(
-            (self.members, self.batch_size), device=self.device, dtype=torch.float64
-        )
-        indices = torch.minimum((uniform * size).long(), size - 1)
-        batch = self.buffer.gather(indices)
-        return self._gradient_step(batch, self._device_noise(batch))
+        batch = self.buffer.sample_on_device(self.batch_size, size)
+        noise = self.device_noise(batch, kind)
+        return self.gradient_step(batch, noise, kind, **self.step_inputs(batch, kind))
 
     # bf16 autocast of the CPU update: a measurement (benchmarks/bf16_curves.py), not a
     # setting of the harness; None keeps fp32
     cpu_autocast: torch.dtype | None = None
 
     def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
-        """One gradient step of every member on its own minibatch; per-member losses (N,)."""
+        """One gradient step of every member on its own minibatch (of the kind
+        ``next_step_kind`` names); per-member losses (N,)."""
+        kind = self.next_step_kind()
+        if kind not in self.STEP_KINDS:
+            raise ContractError(f"{type(self).__name__} took a step of unknown kind '{kind}'")
         if self.device.type == "cpu":
-            batch = self.buffer.sample(self.batch_size, rngs)
-            with torch.autocast(
-                "cpu",
-                dtype=self.cpu_autocast or torch.bfloat16,
-                enabled=self.cpu_autocast is not None,
-            ):
-                return self._gradient_step(batch, self._cpu_noise())
+            with no_global_draws(f"{type(self).__name__}'s gradient step"):
+                batch = self.buffer.sample(self.batch_size, rngs)
+                inputs = self.step_inputs(batch, kind)
+                with torch.autocast(
+                    "cpu",
+                    dtype=self.cpu_autocast or torch.bfloat16,
+                    enabled=self.cpu_autocast is not None,
+                ):
+                    return self.gradient_step(batch, self.cpu_noise(kind), kind, **inputs)
         self._size.fill_(self.buffer.size)
-        return self._update_graph(size=self._size)
+        return self._step_graphs[kind](size=self._size)
+
+    # the names the scripts in benchmarks/ call; new code calls the contract's
+    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
+        return self.gradient_step(batch, noise)
+
+    def _cpu_noise(self) -> Any:
+        return self.cpu_noise()
 
     def noise_state(self) -> dict[str, Any]:
         if self.device.type == "cpu":
@@ -222,43 +240,6 @@ class OffPolicyAgent:
                 generator.set_state(value)
         else:
             torch.cuda.set_rng_state(state["cuda"], self.device)
-
-    def _cpu_noise(self) -> Any:
-        raise NotImplementedError
-
-    def _device_noise(self, batch: Batch) -> Any:
-        raise NotImplementedError
-
-    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
-
-
-def agent_state(agent: OffPolicyAgent) -> dict[str, Any]:
-    state = {name: copy.deepcopy(getattr(agent, name).state_dict()) for name in agent.MODULES}
-    if hasattr(agent, "log_alpha"):
-        state["log_alpha"] = agent.log_alpha.detach().cpu().clone()
-    state["noise"] = agent.noise_state()
-    state["extra"] = agent.extra_state()
-    return state
-
-
-def load_agent_state(agent: OffPolicyAgent, state: dict[str, Any]) -> None:
-    for name in agent.MODULES:
-        try:
-            getattr(agent, name).load_state_dict(state[name])
-        except ValueError as exc:
-            if "parameter groups" not in str(exc):
-                raise
-            raise ValueError(
-                f"this batch checkpoint's {name} predates the CPU batches' two Adam groups "
-                "(docs/reproducibility.md), so it cannot resume; delete the batch's "
-                "checkpoint directory (.batch-* in the run store) to start it over"
-            ) from None
-    if "log_alpha" in state:
-        with torch.no_grad():
-            agent.log_alpha.copy_(state["log_alpha"])
-    agent.load_noise_state(state["noise"])
-    agent.load_extra_state(state.get("extra", {}))
 
 
 class PolicyExplorer:
@@ -462,7 +443,9 @@ def run_off_policy(
                 )
                 guided = np.zeros(n, dtype=bool)
             else:
-                actions, guided = explorer.choose(obs)
+                acting = f"{type(explorer).__name__}'s choice of {type(agent).__name__}'s actions"
+                with no_global_draws(acting):
+                    actions, guided = explorer.choose(obs)
             # a member whose networks diverged between looks at its losses (on a GPU) fails
             # here, alone, before its NaN action reaches its env and the batch's shared
             # lookups (a KD-tree refuses a NaN state for every member)
@@ -493,7 +476,8 @@ def run_off_policy(
                         )
 
             if step % eval_interval == 0 or step == total_steps:
-                evaluate_and_record(step)
+                with no_global_draws("the evaluation"):
+                    evaluate_and_record(step)
                 guided_steps[:] = 0
                 steps_since_eval = 0
             bctx.on_steps(int(alive.sum()))

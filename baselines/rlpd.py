@@ -43,8 +43,7 @@ import torch
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext, DemoSet
-from baselines.common.device import GraphedStep
-from baselines.common.networks import TanhGaussianPolicy
+from baselines.common.networks import TanhGaussianPolicy, frozen, soft_update
 from baselines.common.stacked import (
     StackedReplay,
     StackedSymmetricReplay,
@@ -52,11 +51,13 @@ from baselines.common.stacked import (
     descend,
     layer_norm_mlp,
 )
+from baselines.contract import FULL_STEP
 from baselines.ibrl import preloaded_buffer
 from baselines.offpolicy import action_space, train_members
 from baselines.registry import register
-from baselines.sac import frozen
 from baselines.sac_twin_q import CriticEnsemble, TwinQSACAgent, TwinQSACConfig
+
+CRITIC_STEP = "critic"  # a gradient step of the critics alone
 
 
 @dataclass
@@ -110,7 +111,10 @@ class LayerNormCriticEnsemble(CriticEnsemble):
 class RLPDAgent(TwinQSACAgent):
     """RLPD for N members: twin-Q SAC's policy and temperature, each member's ensemble of
     LayerNorm critics (its target a minimum over its own random subset of them), minibatches
-    half demonstrations, and ``utd`` critic steps per actor step."""
+    half demonstrations, and ``utd`` critic steps per actor step: two kinds of gradient
+    step, the full one (critics, actor, temperature) after every ``utd - 1`` critic-only."""
+
+    STEP_KINDS = (FULL_STEP, CRITIC_STEP)
 
     def __init__(
         self,
@@ -123,9 +127,8 @@ class RLPDAgent(TwinQSACAgent):
     ):
         self.per_member = config.num_qs
         self.demos = demos  # the demonstration transitions
-        super().__init__(seeds, env_id, config, device, cuda_graphs)
         self.critic_updates = 0
-        self._critic_graph = GraphedStep(self._sample_and_critic_step, self.device, cuda_graphs)
+        super().__init__(seeds, env_id, config, device, cuda_graphs)
 
     def member_networks(
         self, seed: int, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
@@ -147,19 +150,13 @@ class RLPDAgent(TwinQSACAgent):
     def load_extra_state(self, state: dict[str, Any]) -> None:
         self.critic_updates = state["critic_updates"]
 
-    def update(self, rngs: list[np.random.Generator]) -> dict[str, torch.Tensor]:
-        """One critic step of every member on its own symmetric minibatch; after every
-        ``utd``-th, the actor and temperature steps too. Per-member losses (N,)."""
+    def next_step_kind(self) -> str:
+        """Critic-only, but every ``utd``-th step the full one."""
         self.critic_updates += 1
-        actor = self.critic_updates % self.config.utd == 0
-        if self.device.type == "cpu":
-            batch = self.buffer.sample(self.batch_size, rngs)
-            return self._rlpd_step(batch, self._cpu_noise(actor), actor)
-        self._size.fill_(self.buffer.size)
-        return (self._update_graph if actor else self._critic_graph)(size=self._size)
+        return FULL_STEP if self.critic_updates % self.config.utd == 0 else CRITIC_STEP
 
-    def _cpu_noise(self, actor: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        # member k draws next_noise, its subset, then new_noise from its own stream
+    def cpu_noise(self, kind: str = FULL_STEP) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        # member k draws next_noise, its subset, then (for the actor) new_noise from its stream
         cfg = self.config
         next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
         new_noise = torch.zeros_like(next_noise)
@@ -167,11 +164,13 @@ class RLPDAgent(TwinQSACAgent):
         for k, generator in enumerate(self.generators):
             next_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
             subsets[k] = torch.randperm(cfg.num_qs, generator=generator)[: cfg.num_min_qs]
-            if actor:
+            if kind == FULL_STEP:
                 new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
         return next_noise, subsets, new_noise
 
-    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def device_noise(
+        self, batch: Batch, kind: str = FULL_STEP
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         cfg = self.config
         subsets = torch.rand((self.members, cfg.num_qs), device=self.device).argsort(dim=-1)[
             :, : cfg.num_min_qs
@@ -182,32 +181,12 @@ class RLPDAgent(TwinQSACAgent):
             torch.randn(batch.actions.shape, device=self.device),
         )
 
-    def _symmetric_batch(self, size: torch.Tensor) -> Batch:
-        half = self.batch_size // 2
-        n_demos = len(self.buffer.demos)
-        # a bound from a Python number: a tensor made here would copy to the device, which
-        # graph capture forbids
-        demo = (
-            (torch.rand((self.members, half), device=self.device) * n_demos)
-            .long()
-            .clamp_(max=n_demos - 1)
-        )
-        uniform = torch.rand(
-            (self.members, self.batch_size - half), device=self.device, dtype=torch.float64
-        )  # float64: evenly likely slots in a large replay (offpolicy.py)
-        online = torch.minimum((uniform * size).long(), size - 1)
-        return self.buffer.gather_halves(demo, online)
-
-    def _sample_and_update(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
-        batch = self._symmetric_batch(size)
-        return self._rlpd_step(batch, self._device_noise(batch), actor=True)
-
-    def _sample_and_critic_step(self, size: torch.Tensor) -> dict[str, torch.Tensor]:
-        batch = self._symmetric_batch(size)
-        return self._rlpd_step(batch, self._device_noise(batch), actor=False)
-
-    def _rlpd_step(
-        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor], actor: bool
+    def gradient_step(
+        self,
+        batch: Batch,
+        noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+        kind: str = FULL_STEP,
+        **target_inputs: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
         cfg = self.config
         next_noise, subsets, new_noise = (t.to(self.device) for t in noise)
@@ -229,12 +208,9 @@ class RLPDAgent(TwinQSACAgent):
         q = critic_ensembles(self.critics, obs, actions, self.per_member)
         q_losses = (q - y[:, None]).pow(2).mean(dim=(1, 2))  # per member: mean over Q and B
         descend(self.critic_optimizer, q_losses)
-        with torch.no_grad():
-            torch._foreach_lerp_(
-                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
-            )
+        soft_update(self.critics_target, self.critics, cfg.tau)
         losses = {"q_loss": q_losses.detach()}
-        if not actor:
+        if kind == CRITIC_STEP:
             return losses
 
         new_actions, log_prob = self.policy.sample(obs, noise=new_noise)

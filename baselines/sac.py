@@ -13,9 +13,7 @@ paper. Only termination stops bootstrapping; a time-limit truncation keeps V'(s'
 
 from __future__ import annotations
 
-import contextlib
 import copy
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,8 +21,9 @@ import torch
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
-from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork
+from baselines.common.networks import QNetwork, TanhGaussianPolicy, VNetwork, frozen, soft_update
 from baselines.common.stacked import StackedMLP, critic_pairs, descend, member_adam, pair_critics
+from baselines.contract import FULL_STEP
 from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
 
@@ -50,19 +49,6 @@ def q_target(
 def v_target(q_min: torch.Tensor, log_prob: torch.Tensor) -> torch.Tensor:
     """y_v = min_i Q_i(s, a) - log pi(a|s), with a ~ pi(.|s)."""
     return q_min - log_prob
-
-
-@contextlib.contextmanager
-def frozen(*modules: torch.nn.Module) -> Iterator[None]:
-    """Build the graph through ``modules`` without asking for their weight gradients."""
-    params = [p for m in modules for p in m.parameters()]
-    for p in params:
-        p.requires_grad_(False)
-    try:
-        yield
-    finally:
-        for p in params:
-            p.requires_grad_(True)
 
 
 @dataclass
@@ -95,28 +81,6 @@ class SACNetworks:
 class SACAgent(OffPolicyAgent):
     """The paper's V-network SAC for N members: five networks each, and the gradient step."""
 
-    def __init__(
-        self,
-        seeds: list[int],
-        env_id: str,
-        config: SACConfig,
-        device: str = "cpu",
-        cuda_graphs: bool = True,
-    ):
-        obs_dim, low, high = self._begin(seeds, env_id, config, device)
-        nets = [SACNetworks.initial(s, obs_dim, self.act_dim, low, high, config) for s in seeds]
-        self.critics = pair_critics([n.q1.net for n in nets], [n.q2.net for n in nets]).to(
-            self.device
-        )
-        self.v = StackedMLP.stack([n.v.net for n in nets]).to(self.device)
-        self.v_target = copy.deepcopy(self.v)
-        self.policy = stack_policies([n.policy for n in nets], self.device)
-        lr = config.learning_rate
-        self.q_optimizer = member_adam(self.critics.parameters(), lr, self.device)
-        self.v_optimizer = member_adam(self.v.parameters(), lr, self.device)
-        self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
-        self._ready(cuda_graphs)
-
     MODULES = (
         "critics",
         "v",
@@ -127,13 +91,31 @@ class SACAgent(OffPolicyAgent):
         "policy_optimizer",
     )
 
-    def _cpu_noise(self) -> torch.Tensor:
-        return self._member_noise(self.batch_size).to(self.device)
+    def build(self, obs_dim: int, low: np.ndarray, high: np.ndarray) -> None:
+        config = self.config
+        nets = [
+            SACNetworks.initial(s, obs_dim, self.act_dim, low, high, config) for s in self.seeds
+        ]
+        self.critics = pair_critics([n.q1.net for n in nets], [n.q2.net for n in nets]).to(
+            self.device
+        )
+        self.v = StackedMLP.stack([n.v.net for n in nets]).to(self.device)
+        self.v_target = copy.deepcopy(self.v)
+        self.policy = stack_policies([n.policy for n in nets], self.device)
+        lr = config.learning_rate
+        self.q_optimizer = member_adam(self.critics.parameters(), lr, self.device)
+        self.v_optimizer = member_adam(self.v.parameters(), lr, self.device)
+        self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
 
-    def _device_noise(self, batch: Batch) -> torch.Tensor:
+    def cpu_noise(self, kind: str = FULL_STEP) -> torch.Tensor:
+        return self.member_noise(self.batch_size).to(self.device)
+
+    def device_noise(self, batch: Batch, kind: str = FULL_STEP) -> torch.Tensor:
         return torch.randn(batch.actions.shape, device=self.device)
 
-    def _gradient_step(self, batch: Batch, noise: torch.Tensor) -> dict[str, torch.Tensor]:
+    def gradient_step(
+        self, batch: Batch, noise: torch.Tensor, kind: str = FULL_STEP
+    ) -> dict[str, torch.Tensor]:
         cfg = self.config
         obs, actions = batch.observations, batch.actions
         with torch.no_grad():
@@ -158,10 +140,7 @@ class SACAgent(OffPolicyAgent):
         descend(self.v_optimizer, v_losses)
         descend(self.policy_optimizer, policy_losses)
 
-        with torch.no_grad():
-            torch._foreach_lerp_(
-                list(self.v_target.parameters()), list(self.v.parameters()), cfg.tau
-            )
+        soft_update(self.v_target, self.v, cfg.tau)
         return {
             "q_loss": q_losses.detach(),
             "v_loss": v_losses.detach(),

@@ -27,11 +27,11 @@ from torch import nn
 
 from baselines.common.buffer import Batch, ReplayBuffer
 from baselines.common.context import BatchContext
-from baselines.common.networks import TanhGaussianPolicy
+from baselines.common.networks import TanhGaussianPolicy, frozen, soft_update
 from baselines.common.stacked import StackedMLP, StackedNormMLP, critic_pairs, descend, member_adam
+from baselines.contract import FULL_STEP
 from baselines.offpolicy import OffPolicyAgent, OffPolicyConfig, stack_policies, train_members
 from baselines.registry import register
-from baselines.sac import frozen
 
 
 @dataclass
@@ -80,16 +80,19 @@ class CriticEnsemble(nn.Module):
 class TwinQSACAgent(OffPolicyAgent):
     """Twin-Q, learned-temperature SAC for N members: the networks and the gradient step."""
 
-    def __init__(
-        self,
-        seeds: list[int],
-        env_id: str,
-        config: TwinQSACConfig,
-        device: str = "cpu",
-        cuda_graphs: bool = True,
-    ):
-        obs_dim, low, high = self._begin(seeds, env_id, config, device)
-        nets = [self.member_networks(s, obs_dim, self.act_dim, low, high) for s in seeds]
+    MODULES = (
+        "critics",
+        "critics_target",
+        "policy",
+        "critic_optimizer",
+        "policy_optimizer",
+        "alpha_optimizer",
+    )
+    TENSORS = ("log_alpha",)
+
+    def build(self, obs_dim: int, low: np.ndarray, high: np.ndarray) -> None:
+        config = self.config
+        nets = [self.member_networks(s, obs_dim, self.act_dim, low, high) for s in self.seeds]
         self.critics = self._stack_ensembles([critics for critics, _ in nets]).to(self.device)
         self.critics_target = copy.deepcopy(self.critics)
         self.policy = stack_policies([policy for _, policy in nets], self.device)
@@ -101,7 +104,6 @@ class TwinQSACAgent(OffPolicyAgent):
         self.critic_optimizer = member_adam(self.critics.parameters(), lr, self.device)
         self.policy_optimizer = member_adam(self.policy.parameters(), lr, self.device)
         self.alpha_optimizer = member_adam([self.log_alpha], lr, self.device)
-        self._ready(cuda_graphs)
 
     def member_networks(
         self, seed: int, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray
@@ -111,15 +113,6 @@ class TwinQSACAgent(OffPolicyAgent):
         hidden = self.config.hidden_sizes
         critics = CriticEnsemble(obs_dim, act_dim, hidden)
         return critics, TanhGaussianPolicy(obs_dim, act_dim, low, high, hidden)
-
-    MODULES = (
-        "critics",
-        "critics_target",
-        "policy",
-        "critic_optimizer",
-        "policy_optimizer",
-        "alpha_optimizer",
-    )
 
     @staticmethod
     def _stack_ensembles(ensembles: list) -> StackedMLP:
@@ -139,7 +132,7 @@ class TwinQSACAgent(OffPolicyAgent):
             )
         return StackedMLP(joined("weights"), joined("biases"))
 
-    def _cpu_noise(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def cpu_noise(self, kind: str = FULL_STEP) -> tuple[torch.Tensor, torch.Tensor]:
         # member k draws next_noise, then new_noise, from its own stream
         next_noise = torch.zeros((self.members, self.batch_size, self.act_dim))
         new_noise = torch.zeros_like(next_noise)
@@ -148,7 +141,9 @@ class TwinQSACAgent(OffPolicyAgent):
             new_noise[k] = torch.randn((self.batch_size, self.act_dim), generator=generator)
         return next_noise.to(self.device), new_noise.to(self.device)
 
-    def _device_noise(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+    def device_noise(
+        self, batch: Batch, kind: str = FULL_STEP
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         return (
             torch.randn(batch.actions.shape, device=self.device),
             torch.randn(batch.actions.shape, device=self.device),
@@ -175,8 +170,12 @@ class TwinQSACAgent(OffPolicyAgent):
         """The minimum of each member's two target critics, (N, B)."""
         return critic_pairs(self.critics_target, obs, actions).min(dim=1).values
 
-    def _gradient_step(
-        self, batch: Batch, noise: tuple[torch.Tensor, torch.Tensor], **target_inputs: torch.Tensor
+    def gradient_step(
+        self,
+        batch: Batch,
+        noise: tuple[torch.Tensor, torch.Tensor],
+        kind: str = FULL_STEP,
+        **target_inputs: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
         cfg = self.config
         next_noise, new_noise = noise
@@ -204,10 +203,7 @@ class TwinQSACAgent(OffPolicyAgent):
         )
         descend(self.alpha_optimizer, alpha_losses)
 
-        with torch.no_grad():
-            torch._foreach_lerp_(
-                list(self.critics_target.parameters()), list(self.critics.parameters()), cfg.tau
-            )
+        soft_update(self.critics_target, self.critics, cfg.tau)
         return {
             "q_loss": q_losses.detach(),
             "policy_loss": policy_losses.detach(),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 
@@ -13,12 +14,18 @@ TINY = {"hidden_sizes": (16, 16), "batch_size": 16, "learning_starts": 100}
 MOUNTAINCAR = "MountainCarContinuous-v0"
 
 
-def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAINCAR, **overrides):
-    """Train ``algo`` briefly; return (curve, whatever ``train`` returns)."""
+def tiny_config(algo: str, **overrides):
+    """``algo``'s config with the TINY settings it has, then ``overrides``."""
     algorithm = get_algorithm(algo)
     known = {f.name for f in dataclasses.fields(algorithm.config_cls)}
     tiny = {k: v for k, v in TINY.items() if k in known}  # each algorithm takes what it has
-    config = algorithm.make_config({**tiny, **overrides})
+    return algorithm.make_config({**tiny, **overrides})
+
+
+def train_tiny(algo: str, seed: int = 0, steps: int = 400, env_id: str = MOUNTAINCAR, **overrides):
+    """Train ``algo`` briefly; return (curve, whatever ``train`` returns)."""
+    algorithm = get_algorithm(algo)
+    config = tiny_config(algo, **overrides)
     points: list[EvalPoint] = []
     demos = load_demos(default_demo_path(env_id), env_id) if algorithm.needs_demos else None
     ctx = TrainContext(
@@ -50,12 +57,47 @@ class _Interrupted(Exception):
     pass
 
 
-def batch_curves(
-    algo: str, config, path, stop_at: int | None = None, seeds=(0, 1), steps: int = 400
-) -> dict[int, list[EvalPoint]]:
+@contextlib.contextmanager
+def built_agents():
+    """The SAC-family agents built inside the block, in order (the trainers keep theirs to
+    themselves; the contract tests look at them once training is over)."""
+    import pytest
+
+    from baselines.offpolicy import OffPolicyAgent
+
+    built: list = []
+    ready = OffPolicyAgent._ready
+
+    def recorded(agent, cuda_graphs: bool) -> None:
+        built.append(agent)
+        ready(agent, cuda_graphs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(OffPolicyAgent, "_ready", recorded)
+        yield built
+
+
+@dataclasses.dataclass
+class TrainedBatch:
+    curves: dict[int, list[EvalPoint]]  # by seed
+    replay: object | None  # what the trainer returned; None when stopped
+    agent: object  # the agent it built
+    resumed_from: int | None  # the checkpoint's step, where it resumed from one
+
+
+def train_batch(
+    algo: str,
+    config,
+    path,
+    stop_at: int | None = None,
+    seeds=(0, 1),
+    steps: int = 400,
+    keep_best=None,
+) -> TrainedBatch:
     """Train ``seeds`` of ``algo`` on MountainCar as one seed batch checkpointing into
-    ``path`` every 100 steps; with ``stop_at``, stop as if killed at that call of the
-    progress callback. Each member's evaluation points, by seed."""
+    ``path`` every 100 steps (and, with ``keep_best``, keeping member k's best policy in
+    ``keep_best / "best-<seed>.pt"``); with ``stop_at``, stop as if killed at that call of
+    the progress callback."""
     from baselines.common.context import BatchContext
     from baselines.registry import batched_trainer
 
@@ -69,15 +111,42 @@ def batch_curves(
             raise _Interrupted
 
     contexts = [
-        TrainContext(MOUNTAINCAR, s, steps, 200, 1, demos=demos, on_eval=points[s].append)
+        TrainContext(
+            MOUNTAINCAR,
+            s,
+            steps,
+            200,
+            1,
+            demos=demos,
+            on_eval=points[s].append,
+            best_policy_path=None if keep_best is None else keep_best / f"best-{s}.pt",
+        )
         for s in seeds
     ]
-    bctx = BatchContext(contexts, on_steps=on_steps, checkpoint_interval=100, checkpoint_path=path)
-    try:
-        batched_trainer(algo)(bctx, [config] * len(seeds))
-    except _Interrupted:
-        pass
-    return points
+    resumed_from: list[int] = []
+    bctx = BatchContext(
+        contexts,
+        on_steps=on_steps,
+        on_resume=resumed_from.append,
+        checkpoint_interval=100,
+        checkpoint_path=path,
+    )
+    replay = None
+    with built_agents() as built:
+        try:
+            replay = batched_trainer(algo)(bctx, [config] * len(seeds))
+        except _Interrupted:
+            pass
+    return TrainedBatch(
+        points, replay, built[-1] if built else None, resumed_from[0] if resumed_from else None
+    )
+
+
+def batch_curves(
+    algo: str, config, path, stop_at: int | None = None, seeds=(0, 1), steps: int = 400
+) -> dict[int, list[EvalPoint]]:
+    """Each member's evaluation points, by seed, of ``train_batch``."""
+    return train_batch(algo, config, path, stop_at, seeds, steps).curves
 
 
 def fill_replays(batch, alone: list, capacity: int, steps: int = 60) -> None:
@@ -137,5 +206,5 @@ def assert_members_agree(batch, alone: list, name: str, per_member: int = 1, ato
         assert len(named) == len(list(mine.parameters()))
         for param, value in mine.named_parameters():
             assert torch.allclose(value[rows], named[param], atol=atol), (name, param)
-        if hasattr(agent, "log_alpha"):
-            assert torch.allclose(batch.log_alpha[k], agent.log_alpha[0], atol=atol)
+        for tensor in agent.TENSORS:  # a learned temperature, one per member
+            assert torch.allclose(getattr(batch, tensor)[k], getattr(agent, tensor)[0], atol=atol)

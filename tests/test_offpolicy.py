@@ -25,7 +25,7 @@ from baselines.common.evaluation import evaluate
 from baselines.common.networks import TanhGaussianPolicy
 from baselines.drl_eg import DRLEGConfig, GuidedExplorer, functional_discriminator, nearest_demo
 from baselines.offpolicy import agent_state, evaluate_members, load_agent_state
-from baselines.registry import batchable_algorithms, batched_trainer, get_algorithm
+from baselines.registry import batched_trainer
 from baselines.sac import SACAgent, SACConfig, SACNetworks
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
 from envs import make_env
@@ -33,7 +33,7 @@ from envs.vector import EnvBatch
 from replicate.demos import default_demo_path, load_demos
 from replicate.store.runner import execute_batch, is_complete, prepare
 from replicate.store.spec import RunSpec
-from tests.helpers import MOUNTAINCAR, TINY, assert_members_agree, curve_signature, train_tiny
+from tests.helpers import MOUNTAINCAR, TINY, assert_members_agree, train_tiny
 
 HOPPER, OBS, ACT, ROWS, SEEDS = "Hopper-v5", 11, 3, 32, (0, 1, 2)
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,10 +93,10 @@ def test_a_batched_gradient_step_equals_each_members_step_alone(agent_cls):
             torch.randn(len(SEEDS), ROWS, ACT, generator=generator)
             for _ in range(2 if twin_q else 1)
         ]
-        losses = batch._gradient_step(minibatch, tuple(noises) if twin_q else noises[0])
+        losses = batch.gradient_step(minibatch, tuple(noises) if twin_q else noises[0])
         for k, agent in enumerate(alone):
             mine = [noise[k : k + 1] for noise in noises]
-            reference = agent._gradient_step(
+            reference = agent.gradient_step(
                 _member(minibatch, k), tuple(mine) if twin_q else mine[0]
             )
             assert set(losses) == set(reference)
@@ -273,16 +273,16 @@ def test_batched_curves_are_deterministic_and_independent_of_neighbours(tmp_path
 
 def _poison(monkeypatch, rows: slice) -> None:
     """After every update, the critics of the member at critic rows ``rows`` turn NaN."""
-    original = SACAgent._gradient_step
+    original = SACAgent.gradient_step
 
-    def poisoned(self, batch, noise):
-        losses = original(self, batch, noise)
+    def poisoned(self, batch, noise, kind):
+        losses = original(self, batch, noise, kind)
         with torch.no_grad():
             for weight in self.critics.weights:
                 weight[rows] = float("nan")
         return losses
 
-    monkeypatch.setattr("baselines.sac.SACAgent._gradient_step", poisoned)
+    monkeypatch.setattr("baselines.sac.SACAgent.gradient_step", poisoned)
 
 
 def test_a_diverging_member_fails_alone(monkeypatch):
@@ -457,22 +457,6 @@ def test_a_t2_sweep_in_one_batch_gives_each_point_its_own_curve(tmp_path):
     assert guided[0] < guided[1]  # each member kept its own T2
 
 
-@pytest.mark.parametrize("algo", batchable_algorithms())
-def test_every_batchable_algorithm_trains_a_tiny_batch(algo):
-    demos = load_demos(default_demo_path(MOUNTAINCAR), MOUNTAINCAR)
-    algorithm = get_algorithm(algo)
-    known = set(algorithm.config_cls.__dataclass_fields__)
-    config = algorithm.make_config({k: v for k, v in TINY.items() if k in known})
-    points = {0: [], 1: []}
-    contexts = [
-        TrainContext(MOUNTAINCAR, s, 300, 150, 1, demos=demos, on_eval=points[s].append)
-        for s in (0, 1)
-    ]
-    batched_trainer(algo)(BatchContext(contexts), [config, config])
-    assert [p.step for p in points[0]] == [0, 150, 300]
-    assert curve_signature(points[0]) != curve_signature(points[1])
-
-
 def test_a_member_failed_before_a_checkpoint_stays_failed_on_resume(tmp_path, monkeypatch):
     members = [prepare(s) for s in _specs(algo="sac", seeds=(0, 1), steps=800)]
 
@@ -554,11 +538,11 @@ def test_a_members_update_is_the_same_in_a_stack_of_2_or_of_8(agent_cls):
         noises = [torch.randn(2, ROWS, ACT, generator=generator) for _ in range(2 if twin_q else 1)]
         repeated = Batch(*[t.repeat(4, *[1] * (t.dim() - 1)) for t in vars(batch).values()])
         if twin_q:
-            small._gradient_step(batch, tuple(noises))
-            large._gradient_step(repeated, tuple(n.repeat(4, 1, 1) for n in noises))
+            small.gradient_step(batch, tuple(noises))
+            large.gradient_step(repeated, tuple(n.repeat(4, 1, 1) for n in noises))
         else:
-            small._gradient_step(batch, noises[0])
-            large._gradient_step(repeated, noises[0].repeat(4, 1, 1))
+            small.gradient_step(batch, noises[0])
+            large.gradient_step(repeated, noises[0].repeat(4, 1, 1))
     if twin_q:
         assert torch.equal(small.log_alpha, large.log_alpha[:2])
     for name in small.MODULES:
@@ -590,16 +574,16 @@ def test_a_member_diverging_between_looks_at_its_losses_fails_alone(tmp_path, mo
     between must not pass its NaN state to the DRL-EG batch's shared KD-tree lookup (which
     would fail the whole batch and discard every member's work)."""
     monkeypatch.setattr("baselines.offpolicy.losses_due", lambda device, step, total: step == total)
-    original = SACAgent._gradient_step
+    original = SACAgent.gradient_step
 
-    def poisoned(self, batch, noise):
-        losses = original(self, batch, noise)
+    def poisoned(self, batch, noise, kind):
+        losses = original(self, batch, noise, kind)
         with torch.no_grad():
             for weight in self.policy.parameters():
                 weight[1] = float("nan")  # member 1's slice of the stacked policy
         return losses
 
-    monkeypatch.setattr("baselines.sac.SACAgent._gradient_step", poisoned)
+    monkeypatch.setattr("baselines.sac.SACAgent.gradient_step", poisoned)
     members = [prepare(s) for s in _specs(algo="drl-eg", seeds=(0, 1, 2), guide_threshold=1.0)]
     outcome = execute_batch(members, tmp_path, device="cpu")
     assert [run_id for run_id, _ in outcome.failed] == [members[1].run_id]

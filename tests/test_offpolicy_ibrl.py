@@ -10,15 +10,13 @@ import torch
 from baselines.common.stacked import critic_pairs
 from baselines.ibrl import IBRLAgent, IBRLConfig, ImitationPolicy
 from replicate.demos import default_demo_path, load_demos
-from replicate.store.runner import execute, execute_batch, prepare
+from replicate.store.runner import execute_batch, prepare
 from replicate.store.spec import RunSpec
 from tests.helpers import (
     MOUNTAINCAR,
     TINY,
     assert_batch_updates_agree,
     assert_members_agree,
-    batch_curves,
-    curve_signature,
     fill_replays,
 )
 
@@ -142,31 +140,6 @@ def test_the_target_bootstraps_from_the_higher_valued_proposal():
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
     return [RunSpec("ibrl", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper}) for seed in seeds]
-
-
-def test_an_ibrl_member_lands_on_the_curve_of_its_single_run(tmp_path):
-    """Seed 1 trained in a batch beside seed 0 and as a single run (``runner.execute``, a
-    batch of one): the same address and, to rounding, the same evaluation and training
-    returns and guided fractions (a batch of one does not round every product as a member
-    of a batch of two does). (The BC imitation's agreement is the proposal and update
-    tests'.)"""
-    batch = execute_batch([prepare(s) for s in _specs()], tmp_path / "batch", device="cpu")
-    alone = execute(prepare(_specs(seeds=(1,))[0]), tmp_path / "alone", device="cpu")
-    assert not batch.failed and batch.runs[1].path.name == alone.path.name
-    for column in ("return_mean", "guided_fraction", "train_return"):  # NaN where none
-        np.testing.assert_allclose(
-            batch.runs[1].curve[column], alone.curve[column], rtol=1e-4, atol=1e-3, err_msg=column
-        )
-    assert batch.runs[0].curve["returns"].tolist() != batch.runs[1].curve["returns"].tolist()
-
-
-def test_an_interrupted_ibrl_batch_resumes_onto_the_uninterrupted_curves(tmp_path):
-    config = IBRLConfig(**TINY)
-    whole = batch_curves("ibrl", config, tmp_path / "whole.pt")
-    batch_curves("ibrl", config, tmp_path / "cut.pt", stop_at=250)
-    resumed = batch_curves("ibrl", config, tmp_path / "cut.pt")
-    for k in (0, 1):
-        assert curve_signature(resumed[k]) == curve_signature(whole[k])
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

@@ -10,14 +10,13 @@ import torch
 from baselines.ibrl import preloaded_buffer
 from baselines.rlpd import RLPDAgent, RLPDConfig
 from replicate.demos import default_demo_path, load_demos
-from replicate.store.runner import execute, execute_batch, prepare
+from replicate.store.runner import execute_batch, prepare
 from replicate.store.spec import RunSpec
 from tests.helpers import (
     MOUNTAINCAR,
     TINY,
     assert_batch_updates_agree,
     assert_members_agree,
-    batch_curves,
     fill_replays,
 )
 
@@ -80,30 +79,6 @@ def test_a_batched_rlpd_update_equals_each_members_update_alone(utd):
 
 def _specs(seeds=(0, 1), steps: int = 400, **hyper):
     return [RunSpec("rlpd", MOUNTAINCAR, seed, steps, 200, 1, {**TINY, **hyper}) for seed in seeds]
-
-
-def test_an_rlpd_member_lands_on_the_curve_of_its_single_run(tmp_path):
-    """Seed 1 trained in a batch beside seed 0 and as a single run (``runner.execute``, a
-    batch of one): the same address and, to rounding, the same evaluation and training
-    returns (a batch of one does not round every product as a member of a batch of two
-    does)."""
-    batch = execute_batch([prepare(s) for s in _specs()], tmp_path / "batch", device="cpu")
-    alone = execute(prepare(_specs(seeds=(1,))[0]), tmp_path / "alone", device="cpu")
-    assert not batch.failed and batch.runs[1].path.name == alone.path.name
-    for column in ("return_mean", "train_return"):  # NaN where none
-        np.testing.assert_allclose(
-            batch.runs[1].curve[column], alone.curve[column], rtol=1e-4, atol=1e-3, err_msg=column
-        )
-    assert batch.runs[0].curve["returns"].tolist() != batch.runs[1].curve["returns"].tolist()
-
-
-def test_an_interrupted_rlpd_batch_resumes_onto_the_uninterrupted_curves(tmp_path):
-    config = RLPDConfig(**TINY)
-    whole = batch_curves("rlpd", config, tmp_path / "whole.pt")
-    batch_curves("rlpd", config, tmp_path / "cut.pt", stop_at=250)
-    resumed = batch_curves("rlpd", config, tmp_path / "cut.pt")
-    for k in (0, 1):
-        assert [(p.step, p.returns) for p in resumed[k]] == [(p.step, p.returns) for p in whole[k]]
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

@@ -5,11 +5,11 @@ from torch.nn import functional as F
 
 from baselines.common.buffer import Batch
 from baselines.common.stacked import StackedNormMLP, StackedSymmetricReplay, critic_ensembles
+from baselines.contract import FULL_STEP
 from baselines.ibrl import preloaded_buffer
-from baselines.rlpd import LayerNormCriticEnsemble, RLPDAgent, RLPDConfig
+from baselines.rlpd import CRITIC_STEP, LayerNormCriticEnsemble, RLPDAgent, RLPDConfig
 from replicate.demos import Demonstrations, default_demo_path, load_demos
 from tests.helpers import MOUNTAINCAR, curve_signature, train_tiny
-from tests.test_resume import Killed, run
 
 OBS, ACT = 2, 1  # MountainCar's
 CPU = torch.device("cpu")
@@ -133,7 +133,7 @@ def test_target_is_the_minimum_over_the_drawn_subset_of_target_critics(backup_en
         entropy = alpha * log_prob if backup_entropy else torch.zeros(2, rows)
         y = reward + gamma * (torch.tensor(expected)[:, None] - entropy)
         noise = (next_noise, torch.tensor(subsets), new_noise)
-        losses = agent._rlpd_step(batch, noise, actor=False)
+        losses = agent.gradient_step(batch, noise, CRITIC_STEP)
         assert losses["q_loss"].tolist() == pytest.approx(y.pow(2).mean(-1).tolist(), rel=1e-5)
 
 
@@ -147,14 +147,14 @@ def test_utd_critic_steps_on_fresh_subsets_then_one_actor_step():
         obs = rng.normal(size=(2, OBS)).astype(np.float32)
         agent.buffer.add(obs, rng.uniform(-1, 1, (2, ACT)), rng.normal(size=2), obs, np.zeros(2))
     subsets, steps = [], []
-    rlpd_step = agent._rlpd_step
+    rlpd_step = agent.gradient_step
 
-    def recorded(batch, noise, actor):
+    def recorded(batch, noise, kind):
         subsets.append(noise[1].tolist())
-        steps.append(actor)
-        return rlpd_step(batch, noise, actor)
+        steps.append(kind == FULL_STEP)
+        return rlpd_step(batch, noise, kind)
 
-    agent._rlpd_step = recorded
+    agent.gradient_step = recorded
     rngs = [np.random.default_rng(s) for s in (0, 1)]
     policy = [p.detach().clone() for p in agent.policy.parameters()]
     critics = [p.detach().clone() for p in agent.critics.parameters()]
@@ -215,19 +215,3 @@ def test_rlpd_explains_missing_transitions(monkeypatch):
     monkeypatch.setattr("tests.helpers.load_demos", pairs_only)
     with pytest.raises(ValueError, match="needs demonstration transitions"):
         train_tiny("rlpd", steps=10)
-
-
-def test_killed_rlpd_run_resumes_onto_the_uninterrupted_curve(tmp_path):
-    # Hopper ends episodes quickly, which gives checkpoints before the kill
-    overrides = {"hidden_sizes": (16, 16), "num_qs": 4}
-    reference, reference_replay, _ = run("rlpd", "Hopper-v5", 600, **overrides)
-    checkpoint = tmp_path / "checkpoint.pt"
-    with pytest.raises(Killed):
-        run("rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, kill_at=450, **overrides)
-    resumed, resumed_replay, resumed_from = run(
-        "rlpd", "Hopper-v5", 600, checkpoint_path=checkpoint, **overrides
-    )
-    assert 150 < resumed_from < 450
-    assert curve_signature(resumed) == curve_signature(reference)
-    assert resumed_replay.size == reference_replay.size == 600
-    assert np.array_equal(resumed_replay.member(0).actions, reference_replay.member(0).actions)

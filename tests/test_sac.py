@@ -99,7 +99,7 @@ def test_update_reduces_q_loss_on_a_fixed_batch():
         torch.zeros(1, 64),
     )
     noise = torch.randn(1, 64, 1, generator=g)
-    losses = [float(agent._gradient_step(batch, noise)["q_loss"][0]) for _ in range(60)]
+    losses = [float(agent.gradient_step(batch, noise)["q_loss"][0]) for _ in range(60)]
     assert all(math.isfinite(x) for x in losses)
     assert losses[-1] < losses[0]
 

@@ -42,7 +42,7 @@ def _agent_and_batch(seed: int = 0):
 def _update(agent, batch, step: int) -> dict[str, float]:
     g = torch.Generator().manual_seed(step)  # the same noise for any agent at this step
     noise = (torch.randn(1, 64, 1, generator=g), torch.randn(1, 64, 1, generator=g))
-    return {name: float(value[0]) for name, value in agent._gradient_step(batch, noise).items()}
+    return {name: float(value[0]) for name, value in agent.gradient_step(batch, noise).items()}
 
 
 def test_update_fits_the_critics_and_tunes_the_temperature_towards_the_target_entropy():

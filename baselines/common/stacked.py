@@ -183,6 +183,21 @@ def critic_ensembles(
     return critics(inputs.reshape(per_member * members, rows, -1)).view(members, per_member, rows)
 
 
+def uniform_indices(
+    members: int,
+    rows: int,
+    size: int | torch.Tensor,
+    device: torch.device,
+    dtype: torch.dtype = torch.float64,
+) -> torch.Tensor:
+    """``rows`` slots per member, uniform in [0, size), from the device's default generator
+    (the GPU's replay sampling; ``size`` a tensor where a CUDA graph replays it). float64 by
+    default: float32 steps of 2^-24 would make slots high in a 1M replay 3-6% more or less
+    likely than others."""
+    uniform = torch.rand((members, rows), device=device, dtype=dtype)
+    return (uniform * size).long().clamp_(max=size - 1)
+
+
 class StackedReplay:
     """One replay buffer per member, stored together: (members, capacity, width) float32 on
     the training device, each row (s, a, r, s', terminated). All members add one transition
@@ -246,6 +261,11 @@ class StackedReplay:
         ``ReplayBuffer.sample`` draws them for one run)."""
         indices = np.stack([rng.integers(0, self.size, size=batch_size) for rng in rngs])
         return self.gather(torch.from_numpy(indices).to(self.device))
+
+    def sample_on_device(self, batch_size: int, size: int | torch.Tensor) -> Batch:
+        """Uniform with replacement among the first ``size`` rows, every member's indices
+        from the device's generator (the GPU's sampling, inside the step's CUDA graph)."""
+        return self.gather(uniform_indices(len(self.data), batch_size, size, self.device))
 
     def state_dict(self) -> dict[str, object]:
         # one host copy, filled member by member: each member's rows are contiguous, so a
@@ -314,3 +334,12 @@ class StackedSymmetricReplay(StackedReplay):
             torch.from_numpy(np.stack(demo_rows)).to(self.device),
             torch.from_numpy(np.stack(online_rows)).to(self.device),
         )
+
+    def sample_on_device(self, batch_size: int, size: int | torch.Tensor) -> Batch:
+        """As ``sample``, from the device's generator: the demonstration half first."""
+        half, members = batch_size // 2, len(self.data)
+        # the bound a Python number: a tensor made here would copy to the device, which
+        # graph capture forbids; float32 draws, as RLPD's runs were trained with
+        demo = uniform_indices(members, half, len(self.demos), self.device, torch.float32)
+        online = uniform_indices(members, batch_size - half, size, self.device)
+        return self.gather_halves(demo, online)

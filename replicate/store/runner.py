@@ -261,146 +261,183 @@ def execute_batch(
     provenance names the batch. A member that diverges fails alone. The batch checkpoints as
     a whole into ``<store>/.<batch id>/`` and resumes from there when started again with the
     same members; past ``deadline`` it checkpoints and stops (``TimeLimitReached``)."""
-    if follow_checkpoint is None:
-        follow_checkpoint = device == "auto"
     check_device(device)
-    store = Path(store)
-    members = [p for p in members if not is_complete(p.directory(store))]
+    members = [p for p in members if not is_complete(p.directory(Path(store)))]
     if not members:
         return BatchOutcome([], [])
-    algorithm = get_algorithm(members[0].spec.algo)
-    if len({batch_key(p) for p in members}) != 1 or (len(members) > 1 and not algorithm.batchable):
-        raise HarnessError(
-            "the runs of a batch must differ only in seed, T2 and sigma, and "
-            f"their algorithm must train in seed batches ({members[0].spec.algo})",
-            f"batch only {', '.join(batchable_algorithms())} runs of one env and budget",
-        )
-    trainer = algorithm.train_batch or _batch_of_one(algorithm.train)
-    store.mkdir(parents=True, exist_ok=True)
-    ident = batch_id(members)
-    batch_dir = store / f".{ident}"
-    locks = []
+    batch = SeedBatch(members, Path(store))
     try:
-        for p in members:
-            lock_path = store / f".lock-{p.run_id}"
+        batch.claim()
+        batch.open(device, device == "auto" if follow_checkpoint is None else follow_checkpoint)
+        failures = batch.train(on_steps, checkpoint_interval, env_workers, deadline)
+        return batch.land(failures)
+    finally:
+        batch.release()
+
+
+class SeedBatch:
+    """One seed batch's way through the store, in named steps: ``claim`` its runs (a lock
+    each), ``open`` its checkpoint directory (fetched from a checkpoint place, on the device
+    its checkpoint names), ``train`` it (recording each stretch), ``land`` each member that
+    finished as its own run, and ``release`` the locks, whatever happened."""
+
+    def __init__(self, members: list[PreparedRun], store: Path):
+        self.members, self.store = members, store
+        self.algorithm = get_algorithm(members[0].spec.algo)
+        if len({batch_key(p) for p in members}) != 1 or (
+            len(members) > 1 and not self.algorithm.batchable
+        ):
+            raise HarnessError(
+                "the runs of a batch must differ only in seed and the settings their "
+                f"algorithm keeps per member, and it must train in seed batches "
+                f"({members[0].spec.algo})",
+                f"batch only {', '.join(batchable_algorithms())} runs of one env and budget",
+            )
+        self.ident = batch_id(members)
+        self.directory = store / f".{self.ident}"
+        self.work_dirs = [partial_directory(p, store) for p in members]
+        self.locks: list[tuple[Path, Any]] = []
+        self.device = "cpu"
+        self.earlier: list[dict] = []
+        self.recorders: list[RunRecorder] = []
+
+    def claim(self) -> None:
+        """Lock every member's run, failing at once (never waiting) where another process
+        trains it or has just finished it."""
+        self.store.mkdir(parents=True, exist_ok=True)
+        for p in self.members:
+            lock_path = self.store / f".lock-{p.run_id}"
             handle = open(lock_path, "w")
             try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)  # never wait: fail at once
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 handle.close()  # the lock file is its holder's to remove
                 raise RunLockedError(
                     f"run {p.run_id} is being trained by another process",
                     "wait for it, or stop that process",
                 ) from None
-            locks.append((lock_path, handle))
-            if (
+            self.locks.append((lock_path, handle))
+            replaced = (
                 not lock_path.exists()
                 or os.stat(lock_path).st_ino != os.fstat(handle.fileno()).st_ino
-            ):
+            )
+            if replaced or is_complete(p.directory(self.store)):
                 raise RunLockedError(
                     f"run {p.run_id} was just finished by another process",
                     "run the same command again",
                 )
-            if is_complete(p.directory(store)):
-                raise RunLockedError(
-                    f"run {p.run_id} was just finished by another process",
-                    "run the same command again",
-                )
-        batch_dir.mkdir(exist_ok=True)
-        (batch_dir / "members.json").write_text(json.dumps([p.run_id for p in members]) + "\n")
-        checkpoint_places.fetch(store, ident, batch_dir / CHECKPOINT_FILE)  # kept elsewhere?
-        earlier = read_segments(batch_dir)
-        resolved = resolve_device(device, has_gpu_path=algorithm.gpu)
+
+    def open(self, device: str, follow_checkpoint: bool) -> None:
+        """The batch's directory with its checkpoint, if one is kept anywhere, and the device
+        to train on: the one asked for, or the checkpoint's kind when following it."""
+        self.directory.mkdir(exist_ok=True)
+        names = json.dumps([p.run_id for p in self.members]) + "\n"
+        (self.directory / "members.json").write_text(names)
+        checkpoint_places.fetch(self.store, self.ident, self.directory / CHECKPOINT_FILE)
+        self.earlier = read_segments(self.directory)
+        resolved = resolve_device(device, has_gpu_path=self.algorithm.gpu)
         try:
-            resolved = resume_device(
+            self.device = resume_device(
                 resolved,
-                _checkpoint_device(batch_dir, earlier),
+                _checkpoint_device(self.directory, self.earlier),
                 follow_checkpoint,
-                what=f"batch {ident} ({batch_dir})",
+                what=f"batch {self.ident} ({self.directory})",
             )
         except CheckpointDeviceError as exc:
-            raise HarnessError(
-                str(exc), f"run it on the device its checkpoint names, or delete {batch_dir}"
-            ) from None
-
-        def record_batch_segment(wall_time_s: float) -> None:
-            this = {"wall_time_s": wall_time_s, "device": describe_device(resolved)}
-            write_segments(batch_dir, earlier + [this])
-
+            raise self._device_error(exc) from None
         # this stretch is recorded before training: a checkpoint it leaves names its device
-        record_batch_segment(0.0)
-        info = {"id": ident, "size": len(members), "members": [p.run_id for p in members]}
-        work_dirs = [partial_directory(p, store) for p in members]
-        recorders = []
-        for p, work in zip(members, work_dirs):
+        self.record_stretch(0.0)
+
+    def record_stretch(self, wall_time_s: float) -> None:
+        this = {"wall_time_s": wall_time_s, "device": describe_device(self.device)}
+        write_segments(self.directory, self.earlier + [this])
+
+    def train(
+        self,
+        on_steps: Callable[[int], None],
+        checkpoint_interval: int,
+        env_workers: int,
+        deadline: float | None,
+    ) -> dict[int, str]:
+        """Train the batch to its end; returns the members that failed alone, by index."""
+        info = {
+            "id": self.ident,
+            "size": len(self.members),
+            "members": [p.run_id for p in self.members],
+        }
+        for p, work in zip(self.members, self.work_dirs):
             work.mkdir(exist_ok=True)
-            recorders.append(RunRecorder(p, work, resolved, info))
+            self.recorders.append(RunRecorder(p, work, self.device, info))
         failures: dict[int, str] = {}
-        contexts = [_context(p, r, resolved) for p, r in zip(members, recorders)]
-
-        def on_resume(step: int) -> None:
-            for recorder in recorders:
-                recorder.on_resume(step)
-
         bctx = BatchContext(
-            contexts,
-            device=resolved,
+            [_context(p, r, self.device) for p, r in zip(self.members, self.recorders)],
+            device=self.device,
             env_workers=env_workers,
             on_steps=on_steps,
-            on_resume=on_resume,
-            on_member_failed=lambda k, why: failures.__setitem__(k, why),
-            checkpoint_path=batch_dir / CHECKPOINT_FILE,
+            on_resume=lambda step: [r.on_resume(step) for r in self.recorders],
+            on_member_failed=failures.__setitem__,
+            checkpoint_path=self.directory / CHECKPOINT_FILE,
             checkpoint_interval=checkpoint_interval,
             deadline=deadline,
         )
+        trainer = self.algorithm.train_batch or _batch_of_one(self.algorithm.train)
         started = time.time()
-        for recorder in recorders:
+        for recorder in self.recorders:
             recorder.open()
         try:
-            trainer(bctx, [p.config for p in members])
+            trainer(bctx, [p.config for p in self.members])
         except TimeLimitReached:  # each stretch's wall time up to the stop; the checkpoint stays
-            record_batch_segment(round(time.time() - started, 3))
-            for recorder in recorders:
+            self.record_stretch(round(time.time() - started, 3))
+            for recorder in self.recorders:
                 recorder.record_segment()
             raise
         except CheckpointDeviceError as exc:
-            raise HarnessError(
-                str(exc), f"run it on the device its checkpoint names, or delete {batch_dir}"
-            ) from None
+            raise self._device_error(exc) from None
         except torch.OutOfMemoryError:
             raise HarnessError(
-                f"batch {ident} of {len(members)} run(s) ran out of GPU memory; "
+                f"batch {self.ident} of {len(self.members)} run(s) ran out of GPU memory; "
                 "its last checkpoint is kept",
                 "run the same command again with a smaller --batch"
-                if len(members) > 1
+                if len(self.members) > 1
                 else "run the same command again with fewer --gpu-workers, or with --device cpu",
             ) from None
         except RECURRING_ERRORS:
-            shutil.rmtree(batch_dir, ignore_errors=True)
-            for work in work_dirs:
+            shutil.rmtree(self.directory, ignore_errors=True)
+            for work in self.work_dirs:
                 shutil.rmtree(work, ignore_errors=True)
             raise  # a carried checkpoint stays: the failure may be this machine's
         finally:
-            for recorder in recorders:
+            for recorder in self.recorders:
                 recorder.close()
-        record_batch_segment(round(time.time() - started, 3))
+        self.record_stretch(round(time.time() - started, 3))
+        return failures
+
+    def land(self, failures: dict[int, str]) -> BatchOutcome:
+        """Each member that finished becomes a complete run under its address; the batch's
+        directory goes, and the checkpoint places are told."""
         runs, failed = [], []
-        for k, (p, recorder, work) in enumerate(zip(members, recorders, work_dirs)):
+        for k, (p, recorder, work) in enumerate(zip(self.members, self.recorders, self.work_dirs)):
             if k in failures:
                 failed.append((p.run_id, f"FloatingPointError: {failures[k]}"))
                 shutil.rmtree(work, ignore_errors=True)
                 continue
             recorder.finish()
             (work / CHECKPOINT_FILE).unlink(missing_ok=True)  # an earlier attempt's, if any
-            final_dir = p.directory(store)
+            final_dir = p.directory(self.store)
             if final_dir.exists():
                 shutil.rmtree(final_dir)
             os.replace(work, final_dir)
             runs.append(load_run(final_dir))
-        shutil.rmtree(batch_dir, ignore_errors=True)
-        checkpoint_places.landed(store, [ident, *(run.path.name for run in runs)])
+        shutil.rmtree(self.directory, ignore_errors=True)
+        checkpoint_places.landed(self.store, [self.ident, *(run.path.name for run in runs)])
         return BatchOutcome(runs, failed)
-    finally:
-        for lock_path, handle in locks:
+
+    def release(self) -> None:
+        for lock_path, handle in self.locks:
             lock_path.unlink(missing_ok=True)
             handle.close()
+
+    def _device_error(self, exc: CheckpointDeviceError) -> HarnessError:
+        return HarnessError(
+            str(exc), f"run it on the device its checkpoint names, or delete {self.directory}"
+        )
