@@ -30,7 +30,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from baselines.common.buffer import Batch
 from baselines.common.checkpoint import (
     CheckpointDeviceError,
     due,
@@ -221,13 +220,6 @@ class OffPolicyAgent(AgentContract):
                     return self.gradient_step(batch, self.cpu_noise(kind), kind, **inputs)
         self._size.fill_(self.buffer.size)
         return self._step_graphs[kind](size=self._size)
-
-    # the names the scripts in benchmarks/ call; new code calls the contract's
-    def _gradient_step(self, batch: Batch, noise: Any) -> dict[str, torch.Tensor]:
-        return self.gradient_step(batch, noise)
-
-    def _cpu_noise(self) -> Any:
-        return self.cpu_noise()
 
     def noise_state(self) -> dict[str, Any]:
         if self.device.type == "cpu":

@@ -305,11 +305,11 @@ def update_precision(calls: int = 50) -> dict[str, float]:
             try:
                 for _ in range(5):
                     with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
-                        agent._gradient_step(batch, noise)
+                        agent.gradient_step(batch, noise)
                 start = time.perf_counter()
                 for _ in range(calls):
                     with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
-                        agent._gradient_step(batch, noise)
+                        agent.gradient_step(batch, noise)
             finally:
                 matmul.fp32_precision = default_precision
             out[f"{name} N={members}"] = round(1000 * (time.perf_counter() - start) / calls, 3)

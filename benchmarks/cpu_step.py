@@ -9,7 +9,7 @@ the bench JSON (``--out``, default ``reports/bench/bench.json``; its other keys 
   the rest (Python and dispatch between operators, and the profiler's own cost), beside
   the time its FLOPs would take at the matrix-product rate measured here.
 - ``compiled_step``: for N = 1, 4, 8 members on Hopper-v5 and Ant-v5, the member-axis
-  gradient step compiled (``torch.compile`` of the agent's ``_gradient_step``; with
+  gradient step compiled (``torch.compile`` of the agent's ``gradient_step``; with
   ``compiled-autograd`` the backward passes are traced too) against eager: compile time
   (cold inductor cache, then warm), agreement with eager after one and after several steps,
   determinism of the compiled step, time per update; and, where the first step agrees with
@@ -193,27 +193,27 @@ def compile_measurement(
     eager, rngs = sac_agent(env_id, members)
     compiled, compiled_rngs = sac_agent(env_id, members)  # the same seeds: the same weights
     start_state = agent_state(compiled)
-    compiled._gradient_step = torch.compile(compiled._gradient_step)
+    compiled.gradient_step = torch.compile(compiled.gradient_step)
     inputs = _inputs(eager, agreement_steps)
 
     began = time.perf_counter()
-    first = compiled._gradient_step(*inputs[0])  # compiles, then runs one step
+    first = compiled.gradient_step(*inputs[0])  # compiles, then runs one step
     compile_s = time.perf_counter() - began
-    reference = eager._gradient_step(*inputs[0])
+    reference = eager.gradient_step(*inputs[0])
     first_gap = max(
         _largest_gap(eager, compiled),
         *(float((first[k] - reference[k]).abs().max()) for k in reference),
     )
     losses = [first]
     for batch, noise in inputs[1:]:
-        losses.append({k: v.clone() for k, v in compiled._gradient_step(batch, noise).items()})
-        eager._gradient_step(batch, noise)
+        losses.append({k: v.clone() for k, v in compiled.gradient_step(batch, noise).items()})
+        eager.gradient_step(batch, noise)
     gap = _largest_gap(eager, compiled)
     bitwise = gap == 0.0 and all(
         torch.equal(a, b) for a, b in zip(compiled.policy.parameters(), eager.policy.parameters())
     )
     load_agent_state(compiled, start_state)  # again from the start: the same numbers?
-    again = [compiled._gradient_step(b, n) for b, n in inputs]
+    again = [compiled.gradient_step(b, n) for b, n in inputs]
     deterministic = all(
         torch.equal(losses[i][k], again[i][k]) for i in range(len(inputs)) for k in losses[i]
     )
@@ -225,20 +225,20 @@ def compile_measurement(
 
     runs = {}
     if first_gap <= AGREES:  # a step that computes something else is not worth a run
-        eager_step = SACAgent._gradient_step
+        eager_step = SACAgent.gradient_step
         for algo in ALGOS:  # eager, compiled, compiled, eager: a drift in speed hits both
             rates: dict[str, list[float]] = {"eager": [], "compiled": []}
             for kind in ("eager", "compiled", "compiled", "eager"):
                 # the trainer builds its own agent: compile the step of every SACAgent; its
                 # first update (before the clock starts) compiles it for that agent
                 if kind == "compiled":
-                    SACAgent._gradient_step = torch.compile(eager_step)
+                    SACAgent.gradient_step = torch.compile(eager_step)
                 try:
                     rate = batched_rate(
                         algo, env_id, members, run_steps, "cpu", 0, warmup=run_warmup
                     )
                 finally:
-                    SACAgent._gradient_step = eager_step
+                    SACAgent.gradient_step = eager_step
                 rates[kind].append(rate["env_steps_per_s"])
             eager_rate, compiled_rate = (statistics.mean(rates[k]) for k in rates)
             runs[algo] = {
@@ -254,9 +254,9 @@ def compile_measurement(
     # cache the first one filled (what a grid's later runs on one machine pay)
     warm, _ = sac_agent(env_id, members)
     torch._dynamo.reset()
-    warm._gradient_step = torch.compile(warm._gradient_step)
+    warm.gradient_step = torch.compile(warm.gradient_step)
     began = time.perf_counter()
-    warm._gradient_step(*inputs[0])
+    warm.gradient_step(*inputs[0])
     warm_compile_s = time.perf_counter() - began
 
     return {

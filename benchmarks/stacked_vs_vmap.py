@@ -69,7 +69,7 @@ def ensemble(models: list[nn.Module]) -> tuple[dict[str, torch.Tensor], Callable
 
 class VmapVSAC:
     """V-SAC's gradient step for N members on vmapped ordinary modules: the math of
-    ``SACAgent._gradient_step``, from the same seeds' initial networks."""
+    ``SACAgent.gradient_step``, from the same seeds' initial networks."""
 
     def __init__(self, seeds: list[int], config: SACConfig):
         _, _, low, high = action_space(ENV_ID)
@@ -155,7 +155,7 @@ def losses_agree(config: SACConfig, members: int = 2) -> float:
     agent, vmapped = filled_agent(seeds, config), VmapVSAC(seeds, config)
     batch = agent.buffer.sample(config.batch_size, [np.random.default_rng(s) for s in seeds])
     noise = member_noise([torch.Generator().manual_seed(s + 1) for s in seeds], config.batch_size)
-    a, b = agent._gradient_step(batch, noise), vmapped.step(batch, noise)
+    a, b = agent.gradient_step(batch, noise), vmapped.step(batch, noise)
     return max(float(((a[k] - b[k]).abs() / a[k].abs().clamp(min=1e-6)).max()) for k in b)
 
 

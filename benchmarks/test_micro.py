@@ -69,7 +69,7 @@ def test_batched_gradient_step(benchmark, algo, members):
         torch.randn(members, ROWS, OBS, generator=g),
         torch.zeros(members, ROWS),
     )
-    benchmark(lambda: agent._gradient_step(batch, agent._cpu_noise()))
+    benchmark(lambda: agent.gradient_step(batch, agent.cpu_noise()))
 
 
 def test_guidance_query(benchmark):
