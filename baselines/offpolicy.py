@@ -16,8 +16,9 @@ the CPU); there the members draw their noise and replay indices from one device 
 for the batch (GPU curves are not bit-reproducible in any case).
 
 What an agent writes, may override and checkpoints is ``baselines.contract``. The loop
-(``run_off_policy``) steps the N envs together; a member whose losses turn NaN or inf fails
-alone. Checkpoints hold the whole batch, mid-episode too (the envs replay their actions).
+(``baselines.training_loop``) steps the N envs together; a member whose action or losses
+turn NaN or inf fails alone. Checkpoints hold the whole batch, mid-episode too (the envs
+replay their actions).
 """
 
 from __future__ import annotations
@@ -30,28 +31,23 @@ from typing import Any
 import numpy as np
 import torch
 
-from baselines.common.checkpoint import (
-    CheckpointDeviceError,
-    due,
-    load_checkpoint,
-    save_checkpoint,
-    stop_if_past,
-)
-from baselines.common.context import BatchContext, EvalPoint
+from baselines.common.context import BatchContext
 from baselines.common.device import GraphedStep
-from baselines.common.evaluation import EVAL_SEED_OFFSET, TrainingReturns
-from baselines.common.random_start import random_start_action
 from baselines.common.stacked import StackedMLP, StackedPolicy, StackedReplay
 from baselines.contract import (
     AgentContract,
     ContractError,
-    agent_state,
     check_contract,
-    load_agent_state,
     no_global_draws,
 )
-from envs import make_env
-from envs.vector import EnvBatch
+from baselines.training_loop import (  # noqa: F401  (re-exported: the trainer's interface)
+    DIVERGENCE_CHECK_INTERVAL,
+    PolicyExplorer,
+    action_space,
+    evaluate_members,
+    losses_due,
+    run_off_policy,
+)
 
 
 @dataclass
@@ -78,14 +74,6 @@ class OffPolicyConfig:
         self.hidden_sizes = tuple(int(w) for w in self.hidden_sizes)
         if self.batch_size <= 0 or self.buffer_size <= 0 or self.gradient_steps < 1:
             raise ValueError("batch_size, buffer_size and gradient_steps must be positive")
-
-
-def action_space(env_id: str) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Observation size, action size and the action box of ``env_id``."""
-    probe = make_env(env_id)
-    obs_dim, space = probe.observation_space.shape[0], probe.action_space
-    probe.close()
-    return obs_dim, space.shape[0], space.low, space.high
 
 
 def seed_device_stream(bctx: BatchContext) -> None:
@@ -234,64 +222,6 @@ class OffPolicyAgent(AgentContract):
             torch.cuda.set_rng_state(state["cuda"], self.device)
 
 
-class PolicyExplorer:
-    """Chooses each member's executed action and sees each evaluation. SAC samples its
-    policy; DRL-EG's, IBRL's and JSRL's explorers may hand a member's step to a guide."""
-
-    def __init__(self, agent: OffPolicyAgent):
-        self.agent = agent
-
-    def choose(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each member's action to execute, and whether a guide chose it."""
-        return self.agent.act(obs), np.zeros(len(obs), dtype=bool)
-
-    def after_eval(self, k: int, mean_return: float) -> bool | None:
-        """Member k's evaluation; a gate state to record, where the explorer has one."""
-        return None
-
-    def episode_start(self, started: np.ndarray) -> None:
-        """The members in ``started`` begin an episode (JSRL counts its steps from here)."""
-
-    def state_dict(self) -> dict[str, Any]:
-        return {}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        pass
-
-
-def evaluate_members(
-    envs: EnvBatch, act: Callable[[np.ndarray], np.ndarray], episodes: int, members: np.ndarray
-) -> list[list[float]]:
-    """``episodes`` deterministic episodes for each member in ``members``, its env stepped
-    only while it still needs one (as ``baselines.common.evaluation.evaluate`` does)."""
-    returns: list[list[float]] = [[] for _ in range(envs.n)]
-    totals = np.zeros(envs.n)
-    running = np.asarray(members, dtype=bool).copy()
-    if not running.any():
-        return returns
-    obs = envs.reset(which=running)
-    while running.any():
-        more = running & np.array([len(r) + 1 < episodes for r in returns])
-        result = envs.step(act(obs), active=running, reset_done=more)
-        for k in np.flatnonzero(running):
-            totals[k] += result.rewards[k]
-            if result.terminated[k] or result.truncated[k]:
-                returns[k].append(float(totals[k]))
-                totals[k] = 0.0
-                running[k] = len(returns[k]) < episodes
-        obs = result.obs
-    return returns
-
-
-DIVERGENCE_CHECK_INTERVAL = 100  # env steps between looks at the losses on a GPU
-
-
-def losses_due(device_type: str, step: int, total_steps: int) -> bool:
-    """Whether this step's losses are read: every step on CPU; on a GPU every
-    ``DIVERGENCE_CHECK_INTERVAL`` steps (reading them waits for the device)."""
-    return device_type == "cpu" or step % DIVERGENCE_CHECK_INTERVAL == 0 or step == total_steps
-
-
 def train_members(
     bctx: BatchContext,
     agent: OffPolicyAgent,
@@ -300,190 +230,3 @@ def train_members(
     """Train a built agent's members with ``explorer`` choosing their actions."""
     seed_device_stream(bctx)  # after the networks: building them reseeds every device
     return run_off_policy(bctx, agent, explorer(agent))
-
-
-def run_off_policy(
-    bctx: BatchContext, agent: OffPolicyAgent, explorer: PolicyExplorer
-) -> StackedReplay:
-    """The training loop of the SAC family (Algorithm 1 of the paper for DRL-EG): N envs,
-    N replays, N curves, one update of every member per env step; the replay is returned.
-    The executed action is what goes in the replay, guided or not."""
-    cfg = agent.config
-    torch.set_num_threads(cfg.torch_threads)
-    env_id, total_steps = bctx.shared("env_id"), bctx.shared("total_steps")
-    eval_interval, eval_episodes = bctx.shared("eval_interval"), bctx.shared("eval_episodes")
-    seeds, n = bctx.seeds, len(bctx.members)
-    envs = EnvBatch(env_id, seeds, bctx.env_workers)
-    eval_envs = EnvBatch(env_id, [s + EVAL_SEED_OFFSET for s in seeds], bctx.env_workers)
-    agent.buffer = agent.make_replay(n, envs.obs_dim, min(cfg.buffer_size, total_steps))
-    buffer = agent.buffer
-    batch_rngs = [np.random.default_rng(seed) for seed in seeds]
-    curves: list[list[EvalPoint]] = [[] for _ in range(n)]
-    alive = np.ones(n, dtype=bool)
-    failures: dict[int, str] = {}
-    guided_steps = np.zeros(n, dtype=np.int64)
-    training = TrainingReturns(n)
-    steps_since_eval = 0
-    best_returns = np.full(n, -np.inf)  # for members that keep their best policy (experts)
-
-    def fail(k: int, reason: str, steps_left: int) -> None:
-        alive[k] = False
-        failures[k] = reason
-        bctx.on_member_failed(k, reason)
-        bctx.on_steps(steps_left)  # a failed member's steps count as done for the progress
-
-    def evaluate_and_record(step: int) -> None:
-        returns = evaluate_members(eval_envs, agent.act_deterministic, eval_episodes, alive)
-        train_returns = training.take()
-        for k in np.flatnonzero(alive):
-            gate = explorer.after_eval(k, float(np.mean(returns[k])))
-            fraction = guided_steps[k] / steps_since_eval if steps_since_eval else float("nan")
-            point = EvalPoint(
-                step, tuple(returns[k]), float(fraction), gate, float(train_returns[k])
-            )
-            curves[k].append(point)
-            bctx.members[k].on_eval(point)
-            keep = bctx.members[k].best_policy_path
-            if keep is not None and point.mean_return > best_returns[k]:
-                best_returns[k] = point.mean_return
-                save_checkpoint(
-                    keep,
-                    {
-                        "policy": agent.policy.member_policy(k).state_dict(),
-                        "step": step,
-                        "mean_return": point.mean_return,
-                    },
-                )
-
-    def save(step: int) -> None:
-        save_checkpoint(
-            bctx.checkpoint_path,
-            {
-                "step": step,
-                "device": agent.device.type,
-                "seeds": seeds,
-                "agent": agent_state(agent),
-                "explorer": explorer.state_dict(),
-                "buffer": buffer.state_dict(),
-                "batch_rngs": batch_rngs,
-                "curves": curves,
-                "alive": alive.copy(),
-                "failures": dict(failures),
-                "obs": obs.copy(),
-                "guided_steps": guided_steps.copy(),
-                "training_returns": training.state_dict(),
-                "steps_since_eval": steps_since_eval,
-                "envs": envs.snapshot(),
-                "eval_envs": eval_envs.snapshot(),
-            },
-        )
-
-    try:
-        resumed = load_checkpoint(bctx.checkpoint_path)
-        if resumed is None:
-            start = 1
-            evaluate_and_record(0)
-            obs = envs.reset(seeds=seeds)
-            explorer.episode_start(np.ones(n, dtype=bool))
-        else:
-            if resumed["device"] != agent.device.type:
-                raise CheckpointDeviceError(
-                    f"the batch checkpoint at {bctx.checkpoint_path} was made on "
-                    f"{resumed['device']}; resume it with --device {resumed['device']}, or "
-                    f"delete it to start over on {agent.device.type}"
-                )
-            if resumed["seeds"] != seeds:
-                raise ValueError(
-                    f"the checkpoint at {bctx.checkpoint_path} holds seeds "
-                    f"{resumed['seeds']}, not {seeds}"
-                )
-            start = resumed["step"] + 1
-            load_agent_state(agent, resumed["agent"])
-            explorer.load_state_dict(resumed["explorer"])
-            buffer.load_state_dict(resumed["buffer"])
-            batch_rngs = resumed["batch_rngs"]
-            alive[:] = resumed["alive"]
-            for k, reason in resumed["failures"].items():  # failed before the checkpoint
-                fail(k, reason, total_steps)
-            guided_steps[:] = resumed["guided_steps"]
-            training.load_state_dict(resumed.get("training_returns"))
-            steps_since_eval = resumed["steps_since_eval"]
-            obs = resumed["obs"]
-            replayed = envs.restore(resumed["envs"])
-            for k in np.flatnonzero(alive):
-                if replayed[k] is None or not np.array_equal(replayed[k], obs[k]):
-                    raise RuntimeError(
-                        f"member {k}'s env did not come back to its "
-                        "checkpointed state on replay (is it deterministic?)"
-                    )
-            eval_envs.restore(resumed["eval_envs"])
-            bctx.on_resume(resumed["step"])
-            for k in range(n):
-                for point in resumed["curves"][k]:
-                    curves[k].append(point)
-                    bctx.members[k].on_eval(point)
-                    best_returns[k] = max(best_returns[k], point.mean_return)
-            bctx.on_steps(resumed["step"] * int(alive.sum()))
-        last_checkpoint = start - 1
-        idle_action = np.zeros(agent.act_dim, dtype=np.float32)
-
-        _, _, low, high = action_space(env_id)
-        for step in range(start, total_steps + 1):
-            if step <= cfg.random_start_steps:  # each member draws its seed's actions
-                actions = np.stack(
-                    [random_start_action(seed, step, low, high) for seed in bctx.seeds]
-                )
-                guided = np.zeros(n, dtype=bool)
-            else:
-                acting = f"{type(explorer).__name__}'s choice of {type(agent).__name__}'s actions"
-                with no_global_draws(acting):
-                    actions, guided = explorer.choose(obs)
-            # a member whose networks diverged between looks at its losses (on a GPU) fails
-            # here, alone, before its NaN action reaches its env and the batch's shared
-            # lookups (a KD-tree refuses a NaN state for every member)
-            for k in np.flatnonzero(alive & ~np.isfinite(actions).all(axis=1)):
-                fail(k, f"diverged at step {step}: a non-finite action", total_steps - step + 1)
-            actions[~alive] = idle_action
-            result = envs.step(actions, active=alive)
-            buffer.add(obs, actions, result.rewards, result.next_obs, result.terminated)
-            obs = result.obs
-            ended = (result.terminated | result.truncated) & alive
-            training.add(result.rewards, ended)
-            if ended.any():
-                explorer.episode_start(ended)
-            guided_steps += guided & alive
-            steps_since_eval += 1
-
-            if step >= cfg.learning_starts:
-                for _ in range(cfg.gradient_steps):
-                    losses = agent.update(batch_rngs)
-                if losses_due(agent.device.type, step, total_steps):
-                    q_loss = losses["q_loss"].cpu().numpy()
-                    for k in np.flatnonzero(alive & ~np.isfinite(q_loss)):
-                        fail(
-                            k,
-                            f"diverged at step {step}: losses "
-                            f"{ {name: float(v[k]) for name, v in losses.items()} }",
-                            total_steps - step + 1,
-                        )
-
-            if step % eval_interval == 0 or step == total_steps:
-                with no_global_draws("the evaluation"):
-                    evaluate_and_record(step)
-                guided_steps[:] = 0
-                steps_since_eval = 0
-            bctx.on_steps(int(alive.sum()))
-            if not alive.any():
-                break
-            if (
-                bctx.checkpoint_path is not None
-                and step < total_steps
-                and due(step, last_checkpoint, bctx.checkpoint_interval, bctx.deadline)
-            ):
-                save(step)
-                last_checkpoint = step
-                stop_if_past(bctx.deadline, step)
-    finally:
-        envs.close()
-        eval_envs.close()
-    return buffer

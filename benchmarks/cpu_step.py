@@ -47,8 +47,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from baselines.common.buffer import Batch  # noqa: E402
-from baselines.offpolicy import action_space, agent_state, load_agent_state  # noqa: E402
+from baselines.contract import agent_state, load_agent_state  # noqa: E402
 from baselines.sac import SACAgent, SACConfig  # noqa: E402
+from baselines.training_loop import action_space  # noqa: E402
 from benchmarks.batched import batched_rate  # noqa: E402
 from benchmarks.bench_measure import flops_per_call, gemm_gflops  # noqa: E402
 

@@ -54,11 +54,12 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from baselines import offpolicy  # noqa: E402
+from baselines import offpolicy, training_loop  # noqa: E402
 from baselines.common.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
-from baselines.offpolicy import action_space, agent_state  # noqa: E402
+from baselines.contract import agent_state  # noqa: E402
 from baselines.sac import SACAgent, SACConfig  # noqa: E402
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig  # noqa: E402
+from baselines.training_loop import action_space  # noqa: E402
 from benchmarks.batched import batched_rate  # noqa: E402
 from replicate.store.runner import (  # noqa: E402
     CHECKPOINT_FILE,
@@ -360,9 +361,9 @@ def gpu_check_rule(device: str) -> Iterator[None]:
     if device != "cpu":
         yield
         return
-    original = offpolicy.losses_due
+    original = training_loop.losses_due
     with mock.patch.object(
-        offpolicy, "losses_due", lambda kind, step, total: original("cuda", step, total)
+        training_loop, "losses_due", lambda kind, step, total: original("cuda", step, total)
     ):
         yield
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from baselines import offpolicy
+from baselines import training_loop
 from baselines.common.stacked import StackedReplay
 from benchmarks import gpu_checks
 from benchmarks.gpu_checks import CHECKS, SMALL, CheckFailed
@@ -71,19 +71,19 @@ def test_a_nan_member_that_reaches_the_batch_fails_the_poison_check(tmp_path, mo
         def isfinite(x):
             return np.ones(np.shape(x), dtype=bool)
 
-    monkeypatch.setattr(offpolicy, "np", Blind())
+    monkeypatch.setattr(training_loop, "np", Blind())
     with pytest.raises(CheckFailed, match="failed as a whole"):
         CHECKS["poison-drl-eg"]("cpu", SMALL, tmp_path)
 
 
 @pytest.mark.slow
 def test_a_resume_that_loses_the_noise_streams_fails_the_kill_resume_check(tmp_path, monkeypatch):
-    original = offpolicy.load_agent_state
+    original = training_loop.load_agent_state
 
     def forgetful(agent, state):
         original(agent, {**state, "noise": agent.noise_state()})
 
-    monkeypatch.setattr(offpolicy, "load_agent_state", forgetful)
+    monkeypatch.setattr(training_loop, "load_agent_state", forgetful)
     with pytest.raises(CheckFailed, match="resumed curve differs"):
         CHECKS["kill-resume"]("cpu", SMALL, tmp_path)
 

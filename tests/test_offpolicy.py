@@ -23,11 +23,12 @@ from baselines.common.buffer import Batch
 from baselines.common.context import BatchContext, TrainContext
 from baselines.common.evaluation import evaluate
 from baselines.common.networks import TanhGaussianPolicy
+from baselines.contract import agent_state, load_agent_state
 from baselines.drl_eg import DRLEGConfig, GuidedExplorer, functional_discriminator, nearest_demo
-from baselines.offpolicy import agent_state, evaluate_members, load_agent_state
 from baselines.registry import batched_trainer
 from baselines.sac import SACAgent, SACConfig, SACNetworks
 from baselines.sac_twin_q import TwinQSACAgent, TwinQSACConfig
+from baselines.training_loop import evaluate_members
 from envs import make_env
 from envs.vector import EnvBatch
 from replicate.demos import default_demo_path, load_demos
@@ -573,7 +574,9 @@ def test_a_member_diverging_between_looks_at_its_losses_fails_alone(tmp_path, mo
     """On a GPU the losses are read every 100 steps; a member whose networks turned NaN in
     between must not pass its NaN state to the DRL-EG batch's shared KD-tree lookup (which
     would fail the whole batch and discard every member's work)."""
-    monkeypatch.setattr("baselines.offpolicy.losses_due", lambda device, step, total: step == total)
+    monkeypatch.setattr(
+        "baselines.training_loop.losses_due", lambda device, step, total: step == total
+    )
     original = SACAgent.gradient_step
 
     def poisoned(self, batch, noise, kind):

@@ -5,7 +5,7 @@ import torch
 from torch.nn import functional as F
 
 from baselines.common.buffer import Batch
-from baselines.offpolicy import agent_state, load_agent_state
+from baselines.contract import agent_state, load_agent_state
 from baselines.sac_twin_q import CriticEnsemble, TwinQSACAgent, TwinQSACConfig
 from tests.helpers import MOUNTAINCAR, train_tiny
 

@@ -183,7 +183,7 @@ def run_grid(
         options.batch,
         options.executor,
     )
-    gpu_workers, env_workers = options.gpu_workers, options.env_workers
+    gpu_workers = options.gpu_workers
     deadline = _deadline if options.deadline is None else options.deadline
     if executor not in EXECUTORS:
         raise HarnessError(f"unknown executor '{executor}'", "pass --executor local or ray")
@@ -231,118 +231,165 @@ def run_grid(
                 deadline,
             ),
         )
-    try:  # at most this many batches share the GPU at once
-        gpu_slots = worker_devices(device, workers or os.cpu_count() or 1, gpu_workers).count(
-            "cuda"
-        )
-    except ValueError as exc:
-        raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
-    checkpoint_places.tidy(store)  # what landed by another way is kept no more
-    tasks = plan_batches(missing, resolve_batch(batch, missing, device, gpu_slots), store)
-    workers = max(1, min(workers or os.cpu_count() or 1, max(1, len(tasks))))
-    if env_workers is None:
-        env_workers = max(0, (os.cpu_count() or 1) // workers - 1)
-    try:
-        devices = worker_devices(device, workers, gpu_workers)
-    except ValueError as exc:
-        raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
-    on_gpu = devices.count("cuda")
-    total_steps = sum(p.spec.total_steps for p in missing)
-    batches = [t for t in tasks if isinstance(t, list)]
-    batched_note = (
-        f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)" if batches else ""
-    )
-    carried = sum(checkpoint_places.resumable_steps(store, {p.run_id for p in missing}).values())
-    carried_note = f" ({carried:,} of them carried)" if carried else ""
-    print(
-        f"{len(prepared)} runs, {len(prepared) - len(missing)} already in {store}; "
-        f"training {len(missing)} runs{batched_note}, {total_steps:,} env steps{carried_note} on "
-        f"{workers} worker(s){f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
-        f"estimated {estimate_minutes(tasks, store, workers, on_gpu=on_gpu > 0):.0f} min "
-        "on this machine "
-        "(from the speeds of the store's runs)",
-        flush=True,
+    grid = LocalGrid(prepared, missing, store, options, deadline)
+    grid.plan()
+    grid.train()
+    return _outcome(
+        prepared, missing, store, grid.started, grid.failed, grid.stopped, grid.not_started
     )
 
-    started = time.time()
-    failed: list[tuple[str, str]] = []
-    stopped: list[str] = []  # checkpointed at the time limit
-    not_started: list[str] = []
-    if tasks and past(deadline):  # the limit passed while the grid was prepared
-        raise TimeLimitStop(_stop_summary(missing, store, [], [p.run_id for p in missing], []))
-    if tasks:
+
+class LocalGrid:
+    """A grid's missing runs trained in local worker processes, in named steps: ``plan`` the
+    seed batches, the workers and their devices (and say so), then ``train`` them with one
+    progress bar, ``settle`` each task as it ends (landed, failed alone, checkpointed at the
+    time limit, or never started) and ``drain`` the workers' step counts into the bar."""
+
+    def __init__(
+        self,
+        prepared: list[PreparedRun],
+        missing: list[PreparedRun],
+        store: Path,
+        options: GridOptions,
+        deadline: float | None,
+    ):
+        self.prepared, self.missing, self.store = prepared, missing, store
+        self.options, self.deadline = options, deadline
+        self.tasks: list[PreparedRun | list[PreparedRun]] = []
+        self.devices: list[str] = []
+        self.workers, self.env_workers = 1, 0
+        self.started = time.time()
+        self.failed: list[tuple[str, str]] = []
+        self.stopped: list[str] = []  # checkpointed at the time limit
+        self.not_started: list[str] = []
+        self.done = 0
+
+    def plan(self) -> None:
+        options, missing, store = self.options, self.missing, self.store
+        cores = os.cpu_count() or 1
+        try:  # at most this many batches share the GPU at once
+            slots = worker_devices(options.device, options.workers or cores, options.gpu_workers)
+        except ValueError as exc:
+            raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
+        checkpoint_places.tidy(store)  # what landed by another way is kept no more
+        batch = resolve_batch(options.batch, missing, options.device, slots.count("cuda"))
+        self.tasks = plan_batches(missing, batch, store)
+        self.workers = max(1, min(options.workers or cores, max(1, len(self.tasks))))
+        self.env_workers = (
+            max(0, cores // self.workers - 1)
+            if options.env_workers is None
+            else options.env_workers
+        )
+        try:
+            self.devices = worker_devices(options.device, self.workers, options.gpu_workers)
+        except ValueError as exc:
+            raise HarnessError(str(exc), "pass --gpu-workers 0 or more") from None
+        on_gpu = self.devices.count("cuda")
+        batches = [t for t in self.tasks if isinstance(t, list)]
+        batched_note = (
+            f" ({sum(len(b) for b in batches)} runs in {len(batches)} seed batches)"
+            if batches
+            else ""
+        )
+        ids = {p.run_id for p in missing}
+        carried = sum(checkpoint_places.resumable_steps(store, ids).values())
+        carried_note = f" ({carried:,} of them carried)" if carried else ""
+        minutes = estimate_minutes(self.tasks, store, self.workers, on_gpu=on_gpu > 0)
+        print(
+            f"{len(self.prepared)} runs, {len(self.prepared) - len(missing)} already in {store}; "
+            f"training {len(missing)} runs{batched_note}, {self.total_steps:,} env steps"
+            f"{carried_note} on {self.workers} worker(s)"
+            f"{f' ({on_gpu} on the GPU)' if on_gpu else ''}; "
+            f"estimated {minutes:.0f} min on this machine (from the speeds of the store's runs)",
+            flush=True,
+        )
+
+    @property
+    def total_steps(self) -> int:
+        return sum(p.spec.total_steps for p in self.missing)
+
+    def train(self) -> None:
+        self.started = time.time()
+        if self.tasks and past(self.deadline):  # the limit passed while the grid was prepared
+            ids = [p.run_id for p in self.missing]
+            raise TimeLimitStop(_stop_summary(self.missing, self.store, [], ids, []))
+        if not self.tasks:
+            return
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited torch state
         # a plain queue handed over at worker start: no manager process to outlive a kill
         progress = ctx.Queue()
         device_slots = ctx.Queue()
-        for worker_device in devices:
+        for worker_device in self.devices:
             device_slots.put(worker_device)
         with tqdm(
-            total=total_steps, unit="step", dynamic_ncols=True, mininterval=1.0, desc="training"
+            total=self.total_steps,
+            unit="step",
+            dynamic_ncols=True,
+            mininterval=1.0,
+            desc="training",
         ) as bar:
             with ProcessPoolExecutor(
-                max_workers=workers,
+                max_workers=self.workers,
                 mp_context=ctx,
                 initializer=_init_worker,
                 initargs=(progress, device_slots, os.getpid()),
             ) as pool:
-                futures: dict[Future, PreparedRun | list[PreparedRun]] = {
-                    pool.submit(
-                        _worker,
-                        task,
-                        str(store),
-                        options.checkpoint_interval,
-                        device == "auto",
-                        env_workers,
-                        deadline,
-                    ): task
-                    for task in tasks
-                }
+                futures = {self._submit(pool, task): task for task in self.tasks}
                 pending = set(futures)
-                done_count = 0
                 while pending:
-                    if past(deadline):  # what has not started yet never will
+                    if past(self.deadline):  # what has not started yet never will
                         for future in pending:
                             future.cancel()
                     finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                     for future in finished:
-                        task = futures[future]
-                        error = None if future.cancelled() else future.exception()
-                        lost: list[tuple[str, str]] = []
-                        if future.cancelled() or (
-                            isinstance(error, TimeLimitReached) and error.step is None
-                        ):
-                            not_started.extend(task_ids(task))
-                            continue
-                        if isinstance(error, TimeLimitReached):
-                            stopped.extend(task_ids(task))
-                            continue
-                        done_count += len(task_ids(task))
-                        if error is not None:
-                            reason = f"{type(error).__name__}: {error}".replace("\n", " ")
-                            lost = [(run_id, reason) for run_id in task_ids(task)]
-                        else:
-                            lost = future.result()
-                        for run_id, reason in lost:
-                            failed.append((run_id, reason))
-                            tqdm.write(f"run failed: {run_id}: {reason}")
-                    try:
-                        while True:
-                            bar.update(progress.get_nowait())
-                    except queue.Empty:
-                        pass
+                        self.settle(future, futures[future])
+                    self.drain(progress, bar, wait_s=0.0)
                     bar.set_postfix_str(
-                        f"runs done {done_count}/{len(missing)}, "
-                        f"running {min(workers, len(pending))} task(s), "
-                        f"failed {len(failed)}",
+                        f"runs done {self.done}/{len(self.missing)}, "
+                        f"running {min(self.workers, len(pending))} task(s), "
+                        f"failed {len(self.failed)}",
                         refresh=False,
                     )
-            try:  # what the last workers posted as they finished
-                while True:
-                    bar.update(progress.get(timeout=0.1))
-            except queue.Empty:
-                pass
-    return _outcome(prepared, missing, store, started, failed, stopped, not_started)
+            self.drain(progress, bar, wait_s=0.1)  # what the last workers posted at their end
+
+    def _submit(self, pool: ProcessPoolExecutor, task: PreparedRun | list[PreparedRun]) -> Future:
+        return pool.submit(
+            _worker,
+            task,
+            str(self.store),
+            self.options.checkpoint_interval,
+            self.options.device == "auto",
+            self.env_workers,
+            self.deadline,
+        )
+
+    def settle(self, future: Future, task: PreparedRun | list[PreparedRun]) -> None:
+        """Record how one task ended."""
+        error = None if future.cancelled() else future.exception()
+        if future.cancelled() or (isinstance(error, TimeLimitReached) and error.step is None):
+            self.not_started.extend(task_ids(task))
+            return
+        if isinstance(error, TimeLimitReached):
+            self.stopped.extend(task_ids(task))
+            return
+        self.done += len(task_ids(task))
+        if error is not None:
+            reason = f"{type(error).__name__}: {error}".replace("\n", " ")
+            lost = [(run_id, reason) for run_id in task_ids(task)]
+        else:
+            lost = future.result()
+        for run_id, reason in lost:
+            self.failed.append((run_id, reason))
+            tqdm.write(f"run failed: {run_id}: {reason}")
+
+    @staticmethod
+    def drain(progress: Any, bar: tqdm, wait_s: float) -> None:
+        """The step counts the workers posted, into the bar (waiting ``wait_s`` for each)."""
+        try:
+            while True:
+                bar.update(progress.get(timeout=wait_s) if wait_s else progress.get_nowait())
+        except queue.Empty:
+            pass
 
 
 def _outcome(
