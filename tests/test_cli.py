@@ -180,12 +180,12 @@ def test_train_seeds_in_a_batch_give_each_seed_the_curve_it_draws_alone(tmp_path
 
 
 def test_a_crashing_run_leaves_no_directory(tmp_path, capsys, monkeypatch):
-    import baselines.offpolicy
+    import baselines.training_loop
 
     def explode(*args, **kwargs):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(baselines.offpolicy, "evaluate_members", explode)
+    monkeypatch.setattr(baselines.training_loop, "evaluate_members", explode)
     store = tmp_path / "store"
     with pytest.raises(RuntimeError, match="boom"):
         main(["train", "--algo", "sac", "--env", MC, "--steps", "10", "--store", str(store)])

@@ -69,7 +69,7 @@ def test_one_run_takes_its_seeds_uniform_actions_first():
 def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch):
     """Each member's first actions are the draws its run alone would take (the same
     function of its own seed and the step), and the policy acts from the step after."""
-    import baselines.offpolicy as offpolicy
+    import baselines.training_loop as training_loop
     from baselines.registry import get_algorithm
 
     drawn = []
@@ -78,7 +78,7 @@ def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch)
         drawn.append((seed, step))
         return random_start_action(seed, step, low, high)
 
-    monkeypatch.setattr(offpolicy, "random_start_action", recording)
+    monkeypatch.setattr(training_loop, "random_start_action", recording)
     config = get_algorithm("sac").make_config(dict(TINY, random_start_steps=150))
     batch_curves("sac", config, tmp_path / "batch", seeds=(0, 1), steps=400)
     assert drawn == [(seed, step) for step in range(1, 151) for seed in (0, 1)]
