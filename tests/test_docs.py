@@ -317,8 +317,9 @@ def test_the_experts_table_is_the_demonstrations_record():
 
 
 def test_the_seed_batch_benches_are_the_recorded_ones():
-    """Every number quoted is the recorded one; a cell still TO-MEASURE awaits the bench."""
+    """Every number quoted is the recorded one, and no cell waits for a measurement."""
     perf = (DOCS / "performance.md").read_text()
+    assert "TO-MEASURE" not in perf
     _, body = table_rows(perf, "| per machine, env steps/s |")
     assert len(body) == 4
     cpu = json.loads((ROOT / "reports/bench/batched_cpu.json").read_text())["cpu"]
@@ -327,12 +328,24 @@ def test_the_seed_batch_benches_are_the_recorded_ones():
         measured = cpu[one] if n is None else cpu[f"machine batched N={n} per process"]
         ratio = 1 if n is None else cpu[f"batched N={n} / one run per process"]
         for cell, recorded in ((row[1], f"{measured:.1f}"), (row[2], f"{ratio:.3g}")):
-            assert cell in ("TO-MEASURE", recorded), f"performance.md, {row[0]}: {cell}"
+            assert cell == recorded, f"performance.md, {row[0]}: {cell}"
 
     gpu = json.loads((ROOT / "reports/bench/batched_gpu.json").read_text())["gpu_batched"]
     quoted = re.search(r"trained ([\d,]+) for 64 members", flat(DOCS / "performance.md"))
     recorded = gpu["sac Hopper-v5 N=64"]["env_steps_per_s"]
     assert quoted and abs(float(quoted[1].replace(",", "")) - recorded) <= 0.5
+
+
+def test_the_compile_decision_and_the_step_profile_are_the_recorded_ones():
+    bench = json.loads((ROOT / "reports/bench/bench.json").read_text())
+    perf = flat(DOCS / "performance.md")
+    decision = bench["compiled_step"]["decision"]
+    assert ("Decision: not offered" in perf) == (not decision["pays"])
+    profile = bench["cpu_step_profile"]
+    quoted = f"{profile['step_ms']:.2f} / {profile['flop_ms_at_gemm_rate']:.2f} = "
+    assert quoted + f"{profile['step / flop time']:.2f}" in perf
+    for part, ms in profile["ms"].items():
+        assert f"| {ms:.2f} |" in (DOCS / "performance.md").read_text(), part
 
 
 # --- links ---------------------------------------------------------------------------------
