@@ -149,6 +149,9 @@ def test_the_readme_keeps_the_two_commands_and_its_length():
     assert "python3 -m pip install nox && python3 -m nox -s tests" in lines  # .ci/run's
     assert "python3 -m pip install nox && python3 -m nox -s replicate-fig3" in lines
     assert len(lines) <= 250
+    # the GPU path's check is named where a user decides to train on a GPU
+    assert "benchmarks/gpu_checks.py" in README.read_text()
+    assert (ROOT / "benchmarks/gpu_checks.py").is_file()
 
 
 # --- docs/results.md: numbers from the runs ----------------------------------------------
