@@ -5,8 +5,8 @@ import numpy as np
 import optuna
 import pandas as pd
 
-from replicate.figures.ablation_grid import area_under_curve
 from replicate.cli.main import main
+from replicate.figures.ablation_grid import area_under_curve
 from replicate.store.runner import Run
 
 
@@ -187,10 +187,7 @@ def test_a_mujoco_sweep_takes_t2_in_multiples_of_the_spacing_and_shows_guidance(
 ):
     import dataclasses
 
-    from replicate.figures import ablation
-
-    from replicate.figures import ablation_grid
-
+    from replicate.figures import ablation, ablation_grid
     from replicate.grids import profiles
 
     env_id = "Walker2d-v5"

@@ -128,8 +128,8 @@ def test_the_mujoco_t2_rule_is_the_committed_ablations_choice():
     MuJoCo)."""
     import numpy as np
 
-    from replicate.grids import drl_eg_settings
     from replicate.figures.ablation import RULE_PROFILE, choose_t2_rule, t2_rule_gains
+    from replicate.grids import drl_eg_settings
 
     standing = choose_t2_rule(t2_rule_gains(STORE, RULE_PROFILE), np.random.default_rng(0))
     assert drl_eg_settings.MUJOCO_T2_RULE == standing["choice"], standing["leader"]

@@ -6,8 +6,8 @@ import re
 import numpy as np
 
 from replicate.cli.main import main
-from replicate.grids.drl_eg_settings import DRL_EG_ENV_DEFAULTS
 from replicate.figures.fig3 import FIG3_ALGORITHMS
+from replicate.grids.drl_eg_settings import DRL_EG_ENV_DEFAULTS
 
 
 def test_smoke_profile_produces_a_self_contained_report(smoke_fig3, capsys, tmp_path):
@@ -89,8 +89,8 @@ def test_report_from_an_empty_store_leaves_the_figures_alone(tmp_path, capsys):
 
 def test_published_sac_sits_beside_ours_at_the_same_steps():
     from replicate.claims.checks import Group
-    from replicate.figures.fig3 import efficiency_rows
     from replicate.claims.published import published_points
+    from replicate.figures.fig3 import efficiency_rows
     from replicate.reports.pages import published_rows
 
     steps = np.array([0, 100_000, 200_000])
@@ -132,8 +132,8 @@ def test_published_sac_sits_beside_ours_at_the_same_steps():
 
 
 def test_a_cells_intervals_do_not_move_when_other_cells_join_the_report():
-    from replicate.figures.fig3 import efficiency_rows, summarise
     from replicate.claims.groups import claim_groups
+    from replicate.figures.fig3 import efficiency_rows, summarise
     from tests.test_rlfd import _run
 
     cell = [_run("sac", seed, [0.0, 40.0 + 7 * seed, 60.0 + 11 * seed]) for seed in range(4)]

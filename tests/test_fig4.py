@@ -97,9 +97,9 @@ def test_fig4_without_demonstrations_says_how_to_make_them(tmp_path, capsys, mon
 
 
 def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path, capsys):
+    from replicate.figures.fig3 import figure3_grid
     from replicate.grids import drl_eg_settings
     from replicate.grids.drl_eg_settings import waits_for_t2_rule
-    from replicate.figures.fig3 import figure3_grid
     from replicate.grids.profiles import get_profile
 
     assert drl_eg_settings.MUJOCO_T2_RULE in drl_eg_settings.T2_RULE_SETTINGS  # fixed
@@ -121,14 +121,13 @@ def test_reduced_mujoco_drl_eg_runs_waited_for_the_t2_rule(monkeypatch, tmp_path
 def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
     import pytest
 
-    from replicate.figures import ablation_grid
-
-    from replicate.grids import drl_eg_settings
     from replicate.errors import HarnessError
+    from replicate.figures import ablation_grid
     from replicate.figures.fig3 import figure3_grid
     from replicate.figures.fig4 import figure4_grid
-    from replicate.grids.profiles import get_profile
     from replicate.figures.rlfd import rlfd_grid
+    from replicate.grids import drl_eg_settings
+    from replicate.grids.profiles import get_profile
     from replicate.store.runner import prepare
 
     reduced = get_profile("reduced")
@@ -161,9 +160,9 @@ def test_a_fixed_t2_rule_gives_the_ablation_runs_of_its_setting(monkeypatch):
 def test_reports_name_where_each_t2_comes_from(monkeypatch):
     from types import SimpleNamespace
 
+    from replicate.figures.fig3 import figure3_grid
     from replicate.grids import drl_eg_settings
     from replicate.grids.drl_eg_settings import guidance_settings
-    from replicate.figures.fig3 import figure3_grid
     from replicate.grids.profiles import get_profile
 
     monkeypatch.setattr(drl_eg_settings, "MUJOCO_T2_RULE", None)  # before the rule, then with it

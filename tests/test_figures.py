@@ -54,13 +54,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
-from replicate.figures import ablation_grid  # noqa: E402
-
-from replicate.figures import ablation_report
-
-from replicate.figures import plots as figures
-
-from replicate.figures import rlfd
+from replicate.figures import ablation_grid, ablation_report, rlfd  # noqa: E402
+from replicate.figures import plots as figures  # noqa: E402
 from replicate.figures.plots import (  # noqa: E402
     ALGO_COLORS,
     CurveBand,

@@ -6,10 +6,10 @@ import math
 import pytest
 
 from envs import PAPER_ENV_IDS
-from replicate.grids.drl_eg_settings import drl_eg_env_defaults
 from replicate.figures.fig3 import FIG3_ALGORITHMS, figure3_grid
-from replicate.grids.train import algorithm_overrides
+from replicate.grids.drl_eg_settings import drl_eg_env_defaults
 from replicate.grids.profiles import get_profile
+from replicate.grids.train import algorithm_overrides
 from tests.helpers import train_tiny
 
 

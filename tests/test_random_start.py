@@ -86,8 +86,8 @@ def test_a_seed_batch_member_draws_its_seeds_random_start(tmp_path, monkeypatch)
 
 def test_the_study_reuses_fig3s_sac_runs_for_the_default_start():
     from replicate.figures.fig3 import figure3_grid
-    from replicate.grids.profiles import get_profile
     from replicate.figures.random_start import random_start_grid
+    from replicate.grids.profiles import get_profile
 
     fig3 = {prepare(s).run_id for s in figure3_grid(get_profile("reduced"))[0] if s.algo == "sac"}
     study = [prepare(s) for s in random_start_grid("reduced")]

@@ -6,7 +6,6 @@ import pytest
 
 from replicate.cli.main import main
 from replicate.errors import HarnessError
-from replicate.grids.profiles import get_profile
 from replicate.figures.rlfd import (
     CURVE_FRACTIONS,
     SPARSE_TASKS,
@@ -15,6 +14,7 @@ from replicate.figures.rlfd import (
     random_return,
     rlfd_grid,
 )
+from replicate.grids.profiles import get_profile
 from replicate.store.runner import Run
 
 TASK = "MountainCarContinuous-v0"

@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 from baselines.common.checkpoint import TimeLimitReached
-from replicate.grids import experiments
 from replicate.cli.main import main, parse_time_limit
-from replicate.grids.options import TIME_LIMIT_EXIT
 from replicate.errors import HarnessError
+from replicate.grids import experiments
+from replicate.grids.options import TIME_LIMIT_EXIT
 from replicate.store.run_recorder import EARLIER_SEGMENTS_FILE
 from replicate.store.runner import (
     CHECKPOINT_FILE,
