@@ -22,7 +22,7 @@ def _install(session: nox.Session, *extras: str) -> None:
 
 @nox.session(python=PYTHON)
 def tests(session: nox.Session) -> None:
-    """The test suite (smoke budgets only; 12-15 minutes on 2 cores)."""
+    """The test suite (smoke budgets only; about 10 minutes on 2 cores)."""
     _install(session, "test")
     session.run("pytest", "-q", *session.posargs, env={"MUJOCO_GL": "disable"})
 
