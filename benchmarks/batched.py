@@ -27,7 +27,7 @@ finished.
     python benchmarks/batched.py --cpu
     python benchmarks/batched.py --cpu --processes 1 --steps 20 --warmup 20   # a smoke run
     python benchmarks/batched.py --update-precision --out reports/bench/bf16_products.json
-    python benchmarks/batched.py --rlfd-cpu --out reports/bench/batched_rlfd_cpu.json
+    python benchmarks/batched.py --cpu --rlfd-cpu --out reports/bench/batched_cpu.json
     python benchmarks/batched.py --gpu --out reports/bench/batched_gpu.json
 """
 
