@@ -83,6 +83,3 @@ def describe(name: str, summary: dict[str, Any]) -> dict[str, str] | None:
     """The front door's words for report ``name`` (None: a report the registry lacks)."""
     figure = figures().get(name)
     return None if figure is None else figure.describe(summary)
-
-
-_ = (Callable, Path)  # used in the rebuild wrappers' annotations
